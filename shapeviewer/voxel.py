@@ -1,0 +1,196 @@
+"""Voxel grids in the paper's placement (Varley et al. 2017, Sec. IV-B; SPEC §2).
+
+A partial view is scaled so that the largest side of its axis-aligned bounding box spans
+``GRID_SPAN`` (32) voxels and translated so that the box centre lands on voxel coordinate
+``CENTER_INDEX`` (20, 20, 18) of a ``GRID_DIM``^3 (40^3) grid. The two-voxel shift along z (the
+camera's viewing direction) leaves room behind the visible surface for the network to fill.
+
+Grids are bool/float arrays indexed ``[x, y, z]`` in the camera optical frame (x right, y down,
+z forward). A :class:`GridFrame` carries the mapping between grid coordinates and camera metres;
+keep it with every grid so CNN outputs and meshes go back to metres.
+
+Coordinate conventions used throughout:
+
+* *grid coordinates* are continuous; voxel ``(i, j, k)`` covers ``[i, i+1) x [j, j+1) x [k, k+1)``
+  and its centre is at ``(i, j, k) + 0.5``.
+* *index* is ``floor(grid coordinates)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+GRID_DIM = 40
+GRID_SPAN = 32
+CENTER_INDEX = np.array([20.0, 20.0, 18.0])
+
+
+@dataclass(frozen=True)
+class GridFrame:
+    """Maps grid coordinates of a ``dim``^3 grid to camera-frame metres.
+
+    Attributes:
+        center: (3,) camera-frame point (metres) that sits at grid coordinate ``CENTER_INDEX``.
+        voxel_size: edge length of one voxel in metres.
+        dim: number of voxels per side.
+    """
+
+    center: np.ndarray
+    voxel_size: float
+    dim: int = GRID_DIM
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", np.asarray(self.center, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "voxel_size", float(self.voxel_size))
+        if not np.all(np.isfinite(self.center)) or not (self.voxel_size > 0):
+            raise ValueError(f"invalid grid frame: center={self.center}, voxel_size={self.voxel_size}")
+
+    @property
+    def offset(self) -> np.ndarray:
+        """Grid coordinate of ``center`` (scaled with ``dim`` so up-sampled grids stay aligned)."""
+        return CENTER_INDEX * (self.dim / GRID_DIM)
+
+    def to_grid(self, points_cam: np.ndarray) -> np.ndarray:
+        """Camera-frame metres (N, 3) -> continuous grid coordinates (N, 3)."""
+        return (np.asarray(points_cam, dtype=np.float64) - self.center) / self.voxel_size + self.offset
+
+    def to_index(self, points_cam: np.ndarray) -> np.ndarray:
+        """Camera-frame metres (N, 3) -> integer voxel indices (N, 3) (may fall outside the grid)."""
+        return np.floor(self.to_grid(points_cam)).astype(np.int64)
+
+    def to_metres(self, grid_coords: np.ndarray) -> np.ndarray:
+        """Continuous grid coordinates (N, 3) -> camera-frame metres (N, 3)."""
+        return (np.asarray(grid_coords, dtype=np.float64) - self.offset) * self.voxel_size + self.center
+
+    def voxel_centers(self, indices: np.ndarray) -> np.ndarray:
+        """Integer voxel indices (N, 3) -> camera-frame metres (N, 3) of the voxel centres."""
+        return self.to_metres(np.asarray(indices, dtype=np.float64) + 0.5)
+
+    def grid_to_camera(self) -> np.ndarray:
+        """4x4 homogeneous transform taking grid coordinates to camera-frame metres."""
+        T = np.eye(4)
+        T[:3, :3] *= self.voxel_size
+        T[:3, 3] = self.center - self.offset * self.voxel_size
+        return T
+
+    def upsampled(self, factor: int) -> GridFrame:
+        """The frame of the same box divided into ``factor`` times more voxels per side."""
+        return GridFrame(self.center, self.voxel_size / factor, self.dim * factor)
+
+    def to_dict(self) -> dict:
+        return {"center": self.center.tolist(), "voxel_size": self.voxel_size, "dim": self.dim}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> GridFrame:
+        return cls(np.asarray(d["center"], dtype=np.float64), float(d["voxel_size"]), int(d.get("dim", GRID_DIM)))
+
+
+def frame_for_points(points_cam: np.ndarray) -> GridFrame:
+    """The paper's grid placement for a partial view (camera-frame metres, (N, 3))."""
+    pts = _finite_points(points_cam)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    extent = float((hi - lo).max())
+    if extent <= 0:
+        raise ValueError("cannot place a grid on a cloud with zero extent (all points identical)")
+    return GridFrame(center=(lo + hi) / 2.0, voxel_size=extent / GRID_SPAN)
+
+
+def points_to_grid(points_cam: np.ndarray, frame: GridFrame) -> np.ndarray:
+    """Occupancy (bool, ``frame.dim``^3, [x, y, z]) of the voxels that camera-frame points fall in.
+
+    Points outside the grid are dropped.
+    """
+    grid = np.zeros(frame.dim**3, dtype=bool)
+    pts = _finite_points(points_cam, allow_empty=True)
+    g = np.floor((pts - frame.center) * (1.0 / frame.voxel_size) + frame.offset)
+    inside = np.all((g >= 0) & (g < frame.dim), axis=1)
+    idx = g[inside].astype(np.int64)
+    grid[(idx[:, 0] * frame.dim + idx[:, 1]) * frame.dim + idx[:, 2]] = True
+    return grid.reshape((frame.dim,) * 3)
+
+
+def partial_to_grid(points_cam: np.ndarray) -> tuple[np.ndarray, GridFrame]:
+    """Voxelize a partial view into the CNN's 40^3 input grid with the paper's placement.
+
+    Args:
+        points_cam: (N, 3) points in the camera optical frame (metres, x right, y down, z forward).
+            Non-finite rows are ignored.
+
+    Returns:
+        ``(grid, frame)``: a (40, 40, 40) bool occupancy array indexed [x, y, z] and its
+        :class:`GridFrame` (index = floor((p - center) / voxel_size + (20, 20, 18))).
+    """
+    frame = frame_for_points(points_cam)
+    return points_to_grid(points_cam, frame), frame
+
+
+def occupied_centers(grid: np.ndarray, frame: GridFrame) -> np.ndarray:
+    """Camera-frame metres (N, 3) of the centres of the occupied voxels of ``grid``."""
+    return frame.voxel_centers(np.argwhere(grid))
+
+
+def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray | None = None,
+               surface_points: np.ndarray | None = None, scene=None) -> np.ndarray:
+    """Every voxel a closed mesh touches: its interior and every voxel its surface passes through.
+
+    This is the ground truth Y of the paper (binvox marks surface and interior, SPEC §4).
+    The interior comes from exact inside tests of the voxel centres; the surface voxels from dense
+    surface samples. Never a hole-filled surface voxelization (that over-fills thin shells).
+
+    Args:
+        mesh: closed triangle mesh in its own frame (metres).
+        frame: the grid frame (camera frame, usually the partial view's).
+        T_cam_mesh: 4x4 pose of the mesh in the camera frame (identity when omitted).
+        surface_points: dense samples of the surface in the mesh frame, spacing well under half a
+            voxel (see :func:`surface_samples`). Sampled here when omitted.
+        scene: an optional prebuilt ``open3d.t.geometry.RaycastingScene`` holding ``mesh``
+            (mesh frame), reused across views of one object.
+    """
+    import open3d as o3d
+
+    T = np.eye(4) if T_cam_mesh is None else np.asarray(T_cam_mesh, dtype=np.float64)
+    grid = np.zeros((frame.dim,) * 3, dtype=bool)
+    corners = np.array(np.meshgrid(*np.asarray(mesh.bounds).T)).reshape(3, -1).T
+    g = frame.to_grid(corners @ T[:3, :3].T + T[:3, 3])
+    # Only voxels inside the mesh's bounding box can be inside it.
+    lo = np.clip(np.floor(g.min(axis=0)).astype(int), 0, frame.dim)
+    hi = np.clip(np.ceil(g.max(axis=0)).astype(int), 0, frame.dim)
+    if np.all(hi > lo):
+        ii, jj, kk = np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi)), indexing="ij")
+        idx = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
+        if scene is None:
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                                o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+        centers_mesh = (frame.voxel_centers(idx) - T[:3, 3]) @ T[:3, :3]
+        inside = scene.compute_occupancy(o3d.core.Tensor(centers_mesh.astype(np.float32))).numpy().astype(bool)
+        idx = idx[inside]
+        grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    if surface_points is None:
+        surface_points = surface_samples(mesh, spacing=frame.voxel_size / 4)
+    grid |= points_to_grid(surface_points @ T[:3, :3].T + T[:3, 3], frame)
+    return grid
+
+
+def surface_samples(mesh: trimesh.Trimesh, spacing: float, max_points: int = 2_000_000,
+                    seed: int = 0) -> np.ndarray:
+    """Points on the surface of ``mesh`` about ``spacing`` apart (same frame and unit as the mesh).
+
+    Includes the vertices so that small features are never missed.
+    """
+    n = int(min(max_points, max(1000, 2.0 * mesh.area / spacing**2)))
+    pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    return np.concatenate([pts, mesh.vertices], axis=0)
+
+
+def _finite_points(points: np.ndarray, allow_empty: bool = False) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():
+        pts = pts[finite]
+    if len(pts) == 0 and not allow_empty:
+        raise ValueError("the point cloud has no finite points")
+    return pts
