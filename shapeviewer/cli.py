@@ -1,0 +1,233 @@
+"""The ``shapeviewer`` command: the viewer's jobs, headless.
+
+    shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH]
+    shapeviewer complete INPUT --segment K|all --mode fast --out DIR
+    shapeviewer objects
+    shapeviewer generate --out DIR [--views N] [--backend process|ray]
+    shapeviewer train --data DIR --run DIR [--steps N]
+    shapeviewer evaluate-grids --data DIR [--weights PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _add_input_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seed", type=int, default=0, help="seed of the generated default scene")
+    p.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
+    for k in ("fx", "fy", "cx", "cy"):
+        p.add_argument(f"--{k}", type=float, default=None, help=f"depth-image intrinsics {k} (pixels)")
+
+
+def _intrinsics(args, shape=None):
+    from .camera import Intrinsics
+
+    if all(getattr(args, k) is None for k in ("fx", "fy", "cx", "cy")):
+        return None
+    base = Intrinsics.kinect()
+    return Intrinsics(base.width, base.height, args.fx or base.fx, args.fy or args.fx or base.fy,
+                      base.cx if args.cx is None else args.cx, base.cy if args.cy is None else args.cy)
+
+
+def load_input(spec: str, seed: int = 0, intrinsics=None):
+    """A :class:`~shapeviewer.capture.Capture` from ``default`` (the generated scene) or a file path."""
+    if spec == "default":
+        from .scene import default_scene
+
+        return default_scene(seed)
+    from .capture import load_capture
+
+    return load_capture(spec, intrinsics=intrinsics)
+
+
+def cmd_serve(args) -> int:
+    from .viewer import serve
+
+    serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
+          intrinsics=_intrinsics(args))
+    return 0
+
+
+def cmd_complete(args) -> int:
+    from . import export
+    from .model import load_completer
+    from .pipeline import SegmentTooSmallError, check_segment, complete_points
+    from .segment import segment_scene
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    capture = load_input(args.input, args.seed, _intrinsics(args))
+    t_load = time.perf_counter() - t0
+    seg = segment_scene(capture)
+    T_world_cam = capture.T_world_cam if capture.objects else seg.T_world_cam
+    completer = load_completer(args.weights)
+    if args.mode != "fast":
+        raise SystemExit(f"mode {args.mode!r} is not available yet (only 'fast')")
+    wanted = seg.segments if args.segment == "all" else [s for s in seg.segments if str(s.id) == args.segment]
+    if not wanted:
+        raise SystemExit(f"no segment {args.segment!r}; the capture has segments {[s.id for s in seg.segments]}")
+    report = {"input": capture.source, "load_seconds": t_load, "segmentation": seg.timings,
+              "model": {"arch": completer.arch, "trained": completer.trained, "weights": completer.source},
+              "T_world_cam": np.asarray(T_world_cam).tolist(), "segments": []}
+    usable = []
+    for s in wanted:
+        entry = {"id": s.id, "label": s.label, "points": int(len(s.points_cam))}
+        try:
+            check_segment(s.points_cam)
+            usable.append(s)
+        except SegmentTooSmallError as e:
+            entry["error"] = str(e)
+        report["segments"].append(entry)
+    completions = complete_points([s.points_cam for s in usable], completer, [s.id for s in usable])
+    by_id = {e["id"]: e for e in report["segments"]}
+    for s, c in zip(usable, completions):
+        e = by_id[s.id]
+        e.update({"grid_frame": c.frame.to_dict(), "timings": c.timings, "input_voxels": int(c.grid_in.sum()),
+                  "output_voxels": int(c.grid_out.sum())})
+        (out / f"segment_{s.id}_points.ply").write_bytes(export.points_ply_bytes(s.points_cam, frame=args.frame,
+                                                                                 T_world_cam=T_world_cam))
+        (out / f"segment_{s.id}_grids.npz").write_bytes(export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame,
+                                                                               T_world_cam))
+        if c.fast_mesh is None:
+            e["error"] = c.error
+            continue
+        path = out / f"segment_{s.id}_fast.{args.format}"
+        path.write_bytes(export.mesh_bytes(c.fast_mesh, args.format, args.frame, T_world_cam))
+        e["mesh"] = {"fast": path.name, "frame": args.frame, "watertight": bool(c.fast_mesh.is_watertight),
+                     "volume_m3": float(c.fast_mesh.volume)}
+    (out / "report.json").write_text(json.dumps(report, indent=1))
+    done = sum("mesh" in e for e in report["segments"])
+    print(f"{done}/{len(report['segments'])} segments completed -> {out}/report.json")
+    return 0
+
+
+def cmd_objects(args) -> int:
+    from .dataset import catalogue
+
+    rows = catalogue()
+    if args.json:
+        print(json.dumps([{"name": e.name, "split": e.split, "source": e.source,
+                           "size_m": [round(x, 4) for x in e.extents]} for e in rows], indent=1))
+        return 0
+    print(f"{'name':34s} {'split':14s} {'source':9s} size (cm)")
+    for e in rows:
+        print(f"{e.name:34s} {e.split:14s} {e.source:9s} {' x '.join(f'{x * 100:.1f}' for x in e.extents)}")
+    counts = {s: sum(e.split == s for e in rows) for s in ("train", "holdout_model")}
+    print(f"{len(rows)} objects: {counts['train']} train, {counts['holdout_model']} holdout models")
+    return 0
+
+
+def cmd_generate(args) -> int:
+    from .generate import GenerationConfig, generate
+
+    r = generate(args.out, GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed),
+                 objects=args.objects, workers=args.workers, backend=args.backend)
+    print(json.dumps({k: v for k, v in r.items() if k != "errors"}, indent=1))
+    for e in r["errors"]:
+        print(f"error: {e['name']}: {e['error']}", file=sys.stderr)
+    return 0
+
+
+def cmd_train(args) -> int:
+    from .train import TrainConfig, train
+
+    cfg = TrainConfig(arch=args.arch, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                      eval_every=args.eval_every, eval_views=args.eval_views, seed=args.seed, width=args.width)
+    print(json.dumps(train(args.data, args.run, cfg), indent=1))
+    return 0
+
+
+def cmd_evaluate_grids(args) -> int:
+    from .model import load_completer
+    from .train import evaluate_grids, load_grid_sets
+
+    completer = load_completer(args.weights)
+    r = evaluate_grids(completer, load_grid_sets(args.data), max_views=args.views, seed=args.seed)
+    print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
+    for s, v in r.items():
+        print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=1))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="shapeviewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-v", "--verbose", action="store_true")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("serve", help="start the web viewer (same as python app.py)")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8080)
+    s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
+    _add_input_args(s)
+    s.set_defaults(func=cmd_serve)
+
+    s = sub.add_parser("complete", help="segment a capture and complete segments headless")
+    s.add_argument("input", help="'default' (generated scene), a .pcd/.ply cloud, or a depth image")
+    s.add_argument("--segment", default="all", help="segment id or 'all'")
+    s.add_argument("--mode", default="fast", choices=["fast", "detailed"])
+    s.add_argument("--out", required=True)
+    s.add_argument("--format", default="ply", choices=["ply", "obj", "stl", "glb"])
+    s.add_argument("--frame", default="world", choices=["world", "camera"])
+    _add_input_args(s)
+    s.set_defaults(func=cmd_complete)
+
+    s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_objects)
+
+    s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
+    s.add_argument("--out", required=True)
+    s.add_argument("--views", type=int, default=None, help="views per object (default: all 726)")
+    s.add_argument("--objects", nargs="*", default=None, help="catalogue names (default: all)")
+    s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
+    s.add_argument("--workers", type=int, default=None)
+    s.add_argument("--backend", default="process", choices=["process", "ray"])
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_generate)
+
+    s = sub.add_parser("train", help="train (or resume) a completion CNN")
+    s.add_argument("--data", required=True)
+    s.add_argument("--run", required=True)
+    s.add_argument("--arch", default="unet3d", choices=["unet3d", "varley2017"])
+    s.add_argument("--steps", type=int, default=20000)
+    s.add_argument("--batch-size", type=int, default=32)
+    s.add_argument("--lr", type=float, default=1e-4)
+    s.add_argument("--eval-every", type=int, default=500)
+    s.add_argument("--eval-views", type=int, default=200)
+    s.add_argument("--width", type=int, default=None)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("evaluate-grids", help="Jaccard at 40^3 on the three evaluation sets")
+    s.add_argument("--data", required=True)
+    s.add_argument("--weights", default=None)
+    s.add_argument("--views", type=int, default=500)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--json", default=None, help="also write the figures to this file")
+    s.set_defaults(func=cmd_evaluate_grids)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError, KeyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

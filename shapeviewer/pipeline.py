@@ -1,0 +1,98 @@
+"""The runtime pipeline of the paper (Fig. 5): capture -> segment -> voxelize -> CNN -> mesh.
+
+Plain functions that the CLI and the viewer both call. Every returned mesh and point array is in
+the camera optical frame (metres) unless its name says otherwise; ``Capture.T_world_cam`` (or the
+segmentation's estimate) takes them to the world frame.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from .model import Completer
+from .reconstruct import fast_mesh
+from .voxel import GridFrame, partial_to_grid
+
+MIN_SEGMENT_POINTS = 50
+MIN_SEGMENT_EXTENT = 0.01  # metres
+
+
+class SegmentTooSmallError(ValueError):
+    """A segment has too few points or too small an extent to place a grid on."""
+
+
+@dataclass
+class Completion:
+    """One segment's completion.
+
+    Attributes:
+        segment_id: the segment completed.
+        grid_in: (40, 40, 40) bool CNN input, [x, y, z].
+        frame: the grid frame (grid coordinates <-> camera metres).
+        probabilities: (40, 40, 40) float32 CNN output.
+        fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
+        detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
+        timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ...).
+        error: why a mesh is missing, if it is.
+    """
+
+    segment_id: int
+    grid_in: np.ndarray
+    frame: GridFrame
+    probabilities: np.ndarray
+    fast_mesh: trimesh.Trimesh | None
+    detailed_mesh: trimesh.Trimesh | None = None
+    timings: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def grid_out(self) -> np.ndarray:
+        """(40, 40, 40) bool: voxels with occupancy probability above 0.5."""
+        return self.probabilities > 0.5
+
+
+def check_segment(points_cam: np.ndarray) -> np.ndarray:
+    """Finite (N, 3) points of a segment, or :class:`SegmentTooSmallError` saying what is wrong."""
+    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < MIN_SEGMENT_POINTS:
+        raise SegmentTooSmallError(f"segment has {len(pts)} valid points; at least {MIN_SEGMENT_POINTS} are needed")
+    extent = float((pts.max(0) - pts.min(0)).max())
+    if extent < MIN_SEGMENT_EXTENT:
+        raise SegmentTooSmallError(f"segment is {extent * 1000:.1f} mm across; at least {MIN_SEGMENT_EXTENT * 1000:.0f} mm is needed")
+    return pts
+
+
+def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
+                    segment_ids: list[int] | None = None) -> list[Completion]:
+    """Fast-complete several segments (camera-frame points, metres): one batched CNN pass.
+
+    Raises :class:`SegmentTooSmallError` if any segment is unusable (check first with
+    :func:`check_segment` to skip those).
+    """
+    ids = list(range(len(segments_points_cam))) if segment_ids is None else list(segment_ids)
+    t0 = time.perf_counter()
+    grids, frames = zip(*(partial_to_grid(check_segment(p)) for p in segments_points_cam)) if segments_points_cam else ((), ())
+    t1 = time.perf_counter()
+    probs = completer.predict(np.stack(grids)) if grids else np.zeros((0, 40, 40, 40), np.float32)
+    t2 = time.perf_counter()
+    n = max(1, len(grids))
+    out = []
+    for sid, g, fr, p in zip(ids, grids, frames, probs):
+        t3 = time.perf_counter()
+        try:
+            mesh, err = fast_mesh(p, fr), None
+        except ValueError as e:
+            mesh, err = None, str(e)
+        timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
+        out.append(Completion(sid, g, fr, p, mesh, timings=timings, error=err))
+    return out
+
+
+def complete_segment(points_cam: np.ndarray, completer: Completer, segment_id: int = 0) -> Completion:
+    """Fast-complete one segment (camera-frame points, metres)."""
+    return complete_points([points_cam], completer, [segment_id])[0]

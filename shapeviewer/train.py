@@ -1,0 +1,273 @@
+"""Training the completion CNN (paper Sec. IV-A, SPEC §3): Adam, binary cross-entropy, batch 32
+drawn with replacement, Jaccard on Training Views, Holdout Views and Holdout Models (paper Fig. 4).
+
+Data: the shards written by :mod:`shapeviewer.generate`. Views of training models are split into
+training views and holdout views by :func:`shapeviewer.dataset.view_split`; only training views
+are trained on.
+
+Outputs in the run directory: ``last.pt`` (resumable: model, optimiser, step, RNG state),
+``best_loss.pt`` (best training error), ``best_holdout_model.pt`` (best Holdout Models Jaccard),
+``log.csv`` and ``jaccard.png`` (the three curves).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from . import dataset
+from .model import build, default_device, save_weights
+from .voxel import GRID_DIM
+
+log = logging.getLogger(__name__)
+
+SETS = ("training_view", "holdout_view", "holdout_model")
+PROB_CLIP = 1e-6  # predictions clipped to [1e-6, 1 - 1e-6] in the loss, as the paper's code did
+LOGIT_CLIP = float(np.log((1 - PROB_CLIP) / PROB_CLIP))
+
+
+@dataclass
+class GridSet:
+    """Bit-packed (X, Y) pairs: ``x``, ``y`` are (N, 8000) uint8; ``objects``/``views`` identify them."""
+
+    x: np.ndarray
+    y: np.ndarray
+    objects: np.ndarray
+    views: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def grids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unpacked bool grids (len(idx), 40, 40, 40) of X and Y."""
+        shape = (len(idx),) + (GRID_DIM,) * 3
+        return (np.unpackbits(self.x[idx], axis=1).reshape(shape).astype(bool),
+                np.unpackbits(self.y[idx], axis=1).reshape(shape).astype(bool))
+
+    def subset(self, idx: np.ndarray) -> GridSet:
+        return GridSet(self.x[idx], self.y[idx], self.objects[idx], self.views[idx])
+
+
+def load_grid_sets(data_dir: str | Path) -> dict[str, GridSet]:
+    """All examples of a generated data folder, split into the paper's three evaluation sets."""
+    data_dir = Path(data_dir)
+    manifest_path = data_dir / "manifest.json"
+    if not manifest_path.exists():
+        raise FileNotFoundError(f"{manifest_path} not found: run `shapeviewer generate --out {data_dir}` first")
+    manifest = json.loads(manifest_path.read_text())
+    parts: dict[str, list] = {s: [] for s in SETS}
+    for shard in manifest["shards"]:
+        with np.load(data_dir / shard["file"]) as z:
+            x, y, views = z["x"], z["y"], z["views"]
+        name = shard["object"]
+        split = np.array([dataset.view_split(name, int(v)) for v in views])
+        for s in SETS:
+            m = split == s
+            if m.any():
+                parts[s].append((x[m], y[m], np.full(m.sum(), name, dtype=object), views[m]))
+    out = {}
+    for s in SETS:
+        if parts[s]:
+            out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(4)))
+        else:
+            empty = np.zeros((0, GRID_DIM**3 // 8), np.uint8)
+            out[s] = GridSet(empty, empty.copy(), np.zeros(0, dtype=object), np.zeros(0, np.int32))
+    return out
+
+
+def augment(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Random symmetries of the image plane (flip x, flip y, swap x and y), applied to X and Y alike.
+
+    Each is a mirror of the scene that keeps the camera at the origin looking along +z, and the grid
+    placement is symmetric in x and y (centre at 20), so augmented pairs are valid views.
+    """
+    if rng.random() < 0.5:
+        x, y = x[:, ::-1], y[:, ::-1]
+    if rng.random() < 0.5:
+        x, y = x[:, :, ::-1], y[:, :, ::-1]
+    if rng.random() < 0.5:
+        x, y = x.transpose(0, 2, 1, 3), y.transpose(0, 2, 1, 3)
+    return np.ascontiguousarray(x), np.ascontiguousarray(y)
+
+
+def bce_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy summed over the 64,000 voxels and averaged over the batch (the paper's)."""
+    logits = logits.clamp(-LOGIT_CLIP, LOGIT_CLIP)
+    return F.binary_cross_entropy_with_logits(logits, target, reduction="sum") / logits.shape[0]
+
+
+def jaccard_grids(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per-example Jaccard (IoU) of bool grids (B, 40, 40, 40)."""
+    inter = (pred & truth).reshape(len(pred), -1).sum(1)
+    union = (pred | truth).reshape(len(pred), -1).sum(1)
+    return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+
+
+def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 500, seed: int = 0,
+                   batch: int = 32) -> dict:
+    """Mean Jaccard at 40^3 (threshold 0.5) per set, for the network and for the input alone.
+
+    Uses a seeded sample of at most ``max_views`` views per set.
+    """
+    from .model import Completer
+
+    out = {}
+    for s, gs in sets.items():
+        if len(gs) == 0:
+            continue
+        rng = np.random.default_rng(seed)
+        idx = np.sort(rng.choice(len(gs), size=min(max_views, len(gs)), replace=False))
+        js, js_in = [], []
+        for i in range(0, len(idx), batch):
+            x, y = gs.grids(idx[i:i + batch])
+            if isinstance(net_or_completer, Completer):
+                p = net_or_completer.predict(x)
+            else:
+                net = net_or_completer
+                dev = next(net.parameters()).device
+                with torch.inference_mode():
+                    p = torch.sigmoid(net(torch.from_numpy(x[:, None].astype(np.float32)).to(dev)))[:, 0].cpu().numpy()
+            js.append(jaccard_grids(p > 0.5, y))
+            js_in.append(jaccard_grids(x, y))
+        out[s] = {"jaccard": float(np.concatenate(js).mean()), "input_jaccard": float(np.concatenate(js_in).mean()),
+                  "views": int(len(idx))}
+    return out
+
+
+@dataclass
+class TrainConfig:
+    arch: str = "unet3d"
+    steps: int = 20000
+    batch_size: int = 32
+    lr: float = 1e-4
+    eval_every: int = 500
+    eval_views: int = 200
+    checkpoint_every: int = 100
+    augment: bool = True
+    seed: int = 0
+    width: int | None = None  # unet3d width (None = the architecture's default)
+
+
+def _arch_kwargs(cfg: TrainConfig) -> dict:
+    return {"width": cfg.width} if (cfg.arch == "unet3d" and cfg.width) else {}
+
+
+def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
+    """Train (or resume) a network on generated data; returns the last evaluation."""
+    from tqdm import tqdm
+
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    device = default_device()
+    sets = load_grid_sets(data_dir)
+    train_set = sets["training_view"]
+    if len(train_set) == 0:
+        raise ValueError(f"no training views in {data_dir}")
+    torch.manual_seed(cfg.seed)
+    net = build(cfg.arch, **_arch_kwargs(cfg)).to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=(0.9, 0.999), eps=1e-8)
+    rng = np.random.default_rng(cfg.seed)
+    step, best_loss, best_jac, wall = 0, float("inf"), -1.0, 0.0
+    last = run_dir / "last.pt"
+    if last.exists():
+        ck = torch.load(last, map_location=device, weights_only=True)
+        net.load_state_dict(ck["state_dict"])
+        opt.load_state_dict(ck["optimizer"])
+        rng.bit_generator.state = ck["rng"]
+        step, best_loss, best_jac, wall = ck["step"], ck["best_loss"], ck["best_jaccard"], ck.get("wall", 0.0)
+        log.info("resumed %s at step %d", run_dir, step)
+    (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": str(data_dir)}, indent=1))
+    meta = lambda: {"steps": step, "arch_kwargs": _arch_kwargs(cfg), "data": str(data_dir), "lr": cfg.lr,
+                    "batch_size": cfg.batch_size, "wall_seconds": wall, "examples": {s: len(v) for s, v in sets.items()}}
+    log_path = run_dir / "log.csv"
+    new_log = not log_path.exists()
+    logf = open(log_path, "a", newline="")
+    writer = csv.writer(logf)
+    if new_log:
+        writer.writerow(["step", "loss", *(f"jaccard_{s}" for s in SETS), "wall_seconds"])
+    bar = tqdm(total=cfg.steps, initial=step, desc="train", disable=not progress)
+    losses = []
+    result = {}
+    net.train()
+    try:
+        while step < cfg.steps:
+            t0 = time.perf_counter()
+            idx = rng.integers(0, len(train_set), cfg.batch_size)  # with replacement, as the paper
+            x, y = train_set.grids(idx)
+            if cfg.augment:
+                x, y = augment(x, y, rng)
+            xt = torch.from_numpy(x[:, None].astype(np.float32)).to(device)
+            yt = torch.from_numpy(y[:, None].astype(np.float32)).to(device)
+            loss = bce_loss(net(xt), yt)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            wall += time.perf_counter() - t0
+            losses.append(loss.item())
+            bar.update(1)
+            bar.set_postfix(loss=f"{losses[-1]:.0f}")
+            if step % cfg.eval_every == 0 or step == cfg.steps:
+                net.eval()
+                result = evaluate_grids(net, sets, max_views=cfg.eval_views, seed=cfg.seed)
+                net.train()
+                mean_loss = float(np.mean(losses))
+                losses.clear()
+                writer.writerow([step, f"{mean_loss:.3f}", *(f"{result.get(s, {}).get('jaccard', float('nan')):.4f}" for s in SETS),
+                                 f"{wall:.0f}"])
+                logf.flush()
+                if mean_loss < best_loss:
+                    best_loss = mean_loss
+                    save_weights(run_dir / "best_loss.pt", net, cfg.arch, {**meta(), "eval": result})
+                jac = result.get("holdout_model", {}).get("jaccard", -1.0)
+                if jac > best_jac:
+                    best_jac = jac
+                    save_weights(run_dir / "best_holdout_model.pt", net, cfg.arch, {**meta(), "eval": result})
+                plot_log(log_path, run_dir / "jaccard.png")
+                log.info("step %d loss %.1f %s", step, mean_loss, {s: round(r["jaccard"], 3) for s, r in result.items()})
+            if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+                _save_checkpoint(last, net, opt, rng, step, best_loss, best_jac, wall)
+    finally:
+        _save_checkpoint(last, net, opt, rng, step, best_loss, best_jac, wall)
+        logf.close()
+        bar.close()
+    return result
+
+
+def _save_checkpoint(path: Path, net, opt, rng, step, best_loss, best_jac, wall) -> None:
+    tmp = path.with_suffix(".pt.tmp")
+    torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "rng": rng.bit_generator.state,
+                "step": step, "best_loss": best_loss, "best_jaccard": best_jac, "wall": wall}, tmp)
+    tmp.replace(path)
+
+
+def plot_log(log_csv: str | Path, png: str | Path) -> None:
+    """The paper's Fig. 4: Jaccard on the three sets against training steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader(open(log_csv)))
+    if not rows:
+        return
+    steps = [int(r["step"]) for r in rows]
+    fig, ax = plt.subplots(figsize=(6, 3.6), dpi=110)
+    for s, label in zip(SETS, ("Training Views", "Holdout Views", "Holdout Models")):
+        ax.plot(steps, [float(r[f"jaccard_{s}"]) for r in rows], label=label)
+    ax.set_xlabel("training steps (batch 32)")
+    ax.set_ylabel("Jaccard similarity (40^3)")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)

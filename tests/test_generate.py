@@ -1,0 +1,93 @@
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from shapeviewer import dataset
+from shapeviewer.generate import (GenerationConfig, generate, generate_object, orientation, view_pose,
+                                  write_manifest)
+from shapeviewer.train import load_grid_sets
+from shapeviewer.voxel import GridFrame, points_to_grid
+
+
+def _unpack(a):
+    return np.unpackbits(a, axis=1).reshape(-1, 40, 40, 40).astype(bool)
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gen")
+    cfg = GenerationConfig(views=6, seed=0)
+    summary = generate(out, cfg, objects=["ycb/025_mug", "ycb/003_cracker_box"], workers=1, progress=False)
+    return out, cfg, summary
+
+
+def test_orientation_grid_is_the_papers_11_6_11():
+    Rs = np.stack([orientation(v) for v in range(726)])
+    np.testing.assert_allclose(Rs @ Rs.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (726, 3, 3)), atol=1e-12)
+    # 726 distinct orientations
+    assert len(np.unique(np.round(Rs.reshape(726, -1), 6), axis=0)) == 726
+
+
+def test_pairs_have_x_mostly_inside_y_in_the_right_frame(generated):
+    out, cfg, summary = generated
+    assert summary["errors"] == []
+    for name in ("ycb/025_mug", "ycb/003_cracker_box"):
+        with np.load(out / "shards" / (name.replace("/", "__") + ".npz")) as z:
+            x, y, views, centers, sizes, T = _unpack(z["x"]), _unpack(z["y"]), z["views"], z["center"], z["voxel_size"], z["T_cam_obj"]
+        assert len(views) >= 4
+        assert (x.sum((1, 2, 3)) >= 100).all()  # the paper's rejection rule
+        inside = (x & y).sum((1, 2, 3)) / x.sum((1, 2, 3))
+        assert np.median(inside) >= 0.8
+        assert (y.sum((1, 2, 3)) > 2 * x.sum((1, 2, 3))).all()  # Y adds the occluded back
+        mesh = dataset.load_mesh(name)
+        mesh.apply_translation(-mesh.bounding_box.centroid)
+        for i in range(len(views)):
+            frame = GridFrame(centers[i], sizes[i])
+            Ti = np.vstack([T[i], [0, 0, 0, 1]])
+            assert np.allclose(Ti, view_pose(name, int(views[i]), cfg.seed))
+            # Frame check: the true mesh's vertices, put in the camera by T_cam_obj, fall in Y.
+            v = trimesh.transform_points(mesh.vertices, Ti)
+            idx = frame.to_index(v)
+            ok = np.all((idx >= 0) & (idx < 40), axis=1)
+            # The grid is sized by the visible part, so a long object seen end-on may stick out.
+            assert ok.mean() > 0.5
+            assert y[i][tuple(idx[ok].T)].all()
+            # and the visible surface is in front (smaller z) of the object's centre
+            zs = np.argwhere(x[i])[:, 2]
+            assert zs.mean() < frame.to_grid(Ti[:3, 3][None])[0, 2]
+
+
+def test_rejection_rule_drops_views_with_too_few_voxels(tmp_path, monkeypatch):
+    import shapeviewer.generate as gen
+
+    monkeypatch.setattr(gen, "MIN_X_VOXELS", 10**6)
+    r = generate_object("ycb/025_mug", tmp_path, GenerationConfig(views=3))
+    assert r["kept"] == 0 and r["rejected"]["few_voxels"] == 3
+
+
+def test_manifest_and_splits(generated):
+    out, cfg, _ = generated
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert {s["object"]: s["split"] for s in manifest["shards"]} == {"ycb/025_mug": "train",
+                                                                    "ycb/003_cracker_box": "holdout_model"}
+    sets = load_grid_sets(out)
+    assert len(sets["holdout_model"]) == sum(s["views"] for s in manifest["shards"] if s["split"] == "holdout_model")
+    assert set(sets["training_view"].objects) | set(sets["holdout_view"].objects) == {"ycb/025_mug"}
+
+
+def test_generation_resumes_without_redoing_work(generated):
+    out, cfg, _ = generated
+    r = generate_object("ycb/025_mug", out, cfg)
+    assert r["skipped"]
+
+
+def test_split_rule_is_stable():
+    assert dataset.model_split("ycb/035_power_drill") == "holdout_model"
+    assert dataset.model_split("ycb/025_mug") == "train"
+    names = [f"random/{i:03d}" for i in range(1000)]
+    frac = np.mean([dataset.model_split(n) == "holdout_model" for n in names])
+    assert 0.12 < frac < 0.18
+    views = [dataset.view_split("ycb/025_mug", v) for v in range(726)]
+    assert 0.15 < views.count("holdout_view") / 726 < 0.25

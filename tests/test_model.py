@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+import torch
+
+from shapeviewer.model import WeightsError, build, load_completer, save_weights
+
+
+def _box_grid():
+    g = np.zeros((40, 40, 40), bool)
+    g[12:28, 12:28, 14:18] = True
+    return g
+
+
+def test_completer_predicts_probabilities_single_and_batched(tmp_path):
+    torch.manual_seed(0)
+    path = tmp_path / "w.pt"
+    save_weights(path, build("unet3d"), "unet3d", {"steps": 1})
+    c = load_completer(path)
+    assert c.trained and c.arch == "unet3d"
+    one = c.predict(_box_grid())
+    assert one.shape == (40, 40, 40) and one.dtype == np.float32
+    assert 0 <= one.min() and one.max() <= 1
+    batch = c.predict(np.stack([_box_grid(), np.zeros((40, 40, 40), bool), _box_grid()]))
+    assert batch.shape == (3, 40, 40, 40)
+    # Batching does not change the answer.
+    np.testing.assert_allclose(batch[0], one, atol=1e-5)
+    np.testing.assert_allclose(batch[2], one, atol=1e-5)
+    with pytest.raises(ValueError, match="40,40,40"):
+        c.predict(np.zeros((32, 32, 32), bool))
+
+
+def test_weights_round_trip_exactly(tmp_path):
+    torch.manual_seed(1)
+    net = build("unet3d").eval()
+    path = tmp_path / "w.pt"
+    save_weights(path, net, "unet3d", {"steps": 5})
+    x = torch.from_numpy(_box_grid()[None, None].astype(np.float32))
+    with torch.no_grad():
+        ref = torch.sigmoid(net(x))[0, 0].numpy()
+    np.testing.assert_allclose(load_completer(path).predict(_box_grid()), ref, atol=1e-5)
+
+
+def test_missing_or_corrupt_weights_are_clear_errors(tmp_path):
+    with pytest.raises(WeightsError, match="not found"):
+        load_completer(tmp_path / "nope.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"this is not a torch file")
+    with pytest.raises(WeightsError, match="cannot load"):
+        load_completer(bad)
+
+
+def test_varley2017_is_the_papers_network_and_trains_on_cpu():
+    torch.manual_seed(0)
+    net = build("varley2017")
+    n = sum(p.numel() for p in net.parameters())
+    assert 425e6 < n < 435e6  # "about 430 million parameters"
+    assert net.dense1.in_features == 21952 and net.dense1.out_features == 5000
+    assert net.dense2.out_features == 64000
+    x = torch.from_numpy(_box_grid()[None, None].astype(np.float32))
+    out = net(x)
+    assert out.shape == (1, 1, 40, 40, 40)
+    out.sigmoid().mean().backward()
+    assert net.features[0].weight.grad is not None and torch.isfinite(net.features[0].weight.grad).all()
