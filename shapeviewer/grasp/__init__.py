@@ -1,0 +1,10 @@
+"""Grasps with the Barrett BH8-280 and the Franka Panda hand (SPEC section 8).
+
+- :mod:`shapeviewer.grasp.hands`: hand descriptions (URDF, dofs, coupling, fingers), forward
+  kinematics and visual meshes in the palm frame, loading a hand into a pybullet client.
+- :mod:`shapeviewer.grasp.world`: :class:`~shapeviewer.grasp.world.GraspWorld`, a pybullet DIRECT
+  world with a table, objects and a free-floating hand moved kinematically (approach, close).
+- :mod:`shapeviewer.grasp.quality`: GraspIt's epsilon (Ferrari-Canny) and volume qualities.
+
+Units are metres and radians throughout; frames are named in every docstring.
+"""
