@@ -184,6 +184,7 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
         rng.bit_generator.state = ck["rng"]
         step, best_loss, best_jac, wall = ck["step"], ck["best_loss"], ck["best_jaccard"], ck.get("wall", 0.0)
         log.info("resumed %s at step %d", run_dir, step)
+        _truncate_log(run_dir / "log.csv", step)
     (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": str(data_dir)}, indent=1))
     meta = lambda: {"steps": step, "arch_kwargs": _arch_kwargs(cfg), "data": str(data_dir), "lr": cfg.lr,
                     "batch_size": cfg.batch_size, "wall_seconds": wall, "examples": {s: len(v) for s, v in sets.items()}}
@@ -240,6 +241,17 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
         logf.close()
         bar.close()
     return result
+
+
+def _truncate_log(log_csv: Path, step: int) -> None:
+    """Drop log rows written after the checkpoint a run resumes from (they will be redone)."""
+    if not log_csv.exists():
+        return
+    rows = list(csv.reader(open(log_csv)))
+    kept = rows[:1] + [r for r in rows[1:] if int(r[0]) <= step]
+    if len(kept) != len(rows):
+        with open(log_csv, "w", newline="") as f:
+            csv.writer(f).writerows(kept)
 
 
 def _save_checkpoint(path: Path, net, opt, rng, step, best_loss, best_jac, wall) -> None:
