@@ -95,15 +95,23 @@ class RaycastRenderer:
                                      o3d.core.Tensor(np.asarray(m.faces, dtype=np.uint32)))
             self.bounds.append(np.asarray(m.bounds))
 
-    def render(self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True
-               ) -> tuple[np.ndarray, np.ndarray]:
-        """Depth (H, W) float32 metres (0 = no hit) and mesh ids (H, W) int32 (-1 = no hit)."""
+    def render(self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True,
+               with_normals: bool = False) -> tuple[np.ndarray, ...]:
+        """Depth (H, W) float32 metres (0 = no hit) and mesh ids (H, W) int32 (-1 = no hit).
+
+        With ``with_normals``, a third output: the hit triangles' unit normals (H, W, 3) float32 in
+        the world frame, as stored in the meshes (not flipped towards the camera), 0 where no hit.
+        """
         dirs_cam = intr.pixel_directions()
         v0, v1, u0, u1 = 0, intr.height, 0, intr.width
+        depth = np.zeros((intr.height, intr.width), np.float32)
+        gid = np.full((intr.height, intr.width), -1, np.int32)
+        normals = np.zeros((intr.height, intr.width, 3), np.float32) if with_normals else None
+        outputs = (depth, gid, normals) if with_normals else (depth, gid)
         if crop_to_objects and self.bounds:
             box = _projected_box(self.bounds, intr, T_world_cam)
             if box is None:
-                return np.zeros((intr.height, intr.width), np.float32), np.full((intr.height, intr.width), -1, np.int32)
+                return outputs
             v0, v1, u0, u1 = box
         R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
         d = dirs_cam[v0:v1, u0:u1] @ R.T.astype(np.float32)
@@ -112,11 +120,11 @@ class RaycastRenderer:
         t_hit = hit["t_hit"].numpy()
         ids = hit["geometry_ids"].numpy().astype(np.int64)
         ok = np.isfinite(t_hit)
-        depth = np.zeros((intr.height, intr.width), np.float32)
-        gid = np.full((intr.height, intr.width), -1, np.int32)
         depth[v0:v1, u0:u1] = np.where(ok, t_hit, 0.0)
         gid[v0:v1, u0:u1] = np.where(ok, ids, -1)
-        return depth, gid
+        if with_normals:
+            normals[v0:v1, u0:u1] = np.where(ok[..., None], hit["primitive_normals"].numpy(), 0.0)
+        return outputs
 
 
 def _projected_box(bounds: list, intr: Intrinsics, T_world_cam: np.ndarray):
