@@ -5,6 +5,10 @@
 - :mod:`shapeviewer.grasp.world`: :class:`~shapeviewer.grasp.world.GraspWorld`, a pybullet DIRECT
   world with a table, objects and a free-floating hand moved kinematically (approach, close).
 - :mod:`shapeviewer.grasp.quality`: GraspIt's epsilon (Ferrari-Canny) and volume qualities.
+- :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan_grasps`).
+- :mod:`shapeviewer.grasp.execute`: the paper's execution on the true object, joint and pose
+  errors, and a dynamic lift test.
+- :mod:`shapeviewer.grasp.export`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.
 
 Units are metres and radians throughout; frames are named in every docstring.
 """

@@ -106,10 +106,18 @@ class UrdfJoint:
         """The joint's own transform at value ``q`` (rad or m)."""
         T = np.eye(4)
         if self.kind in ("revolute", "continuous"):
-            T[:3, :3] = Rotation.from_rotvec(self.axis * q).as_matrix()
+            T[:3, :3] = _axis_angle_matrix(self.axis, q)
         elif self.kind == "prismatic":
             T[:3, 3] = self.axis * q
         return T
+
+
+def _axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` (rad) about unit ``axis`` (Rodrigues; scipy's Rotation costs about a
+    millisecond per call, and forward kinematics runs in every planning and execution step)."""
+    x, y, z = axis
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
 def _origin(elem: ET.Element | None) -> np.ndarray:
@@ -428,16 +436,40 @@ def hand_mesh(hand: Hand, joints: Sequence[float]) -> trimesh.Trimesh:
 # pybullet.
 
 def pose_to_pq(T: np.ndarray) -> tuple[list[float], list[float]]:
-    """Position and pybullet quaternion (x, y, z, w) of a 4x4 pose."""
-    return list(map(float, T[:3, 3])), list(map(float, Rotation.from_matrix(T[:3, :3]).as_quat()))
+    """Position and pybullet quaternion (x, y, z, w, with w >= 0) of a 4x4 pose.
+
+    Shepperd's method in plain Python: these conversions run on every pose set or read in the
+    world, where scipy's Rotation would cost about a millisecond each.
+    """
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(T, float)[:3, :3].tolist()
+    trace = m00 + m11 + m22
+    if trace > max(m00, m11, m22):
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = [(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, s / 4]
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 1e-300))
+        q = [s / 4, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s]
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(max(1.0 + m11 - m00 - m22, 1e-300))
+        q = [(m01 + m10) / s, s / 4, (m12 + m21) / s, (m02 - m20) / s]
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + m22 - m00 - m11, 1e-300))
+        q = [(m02 + m20) / s, (m12 + m21) / s, s / 4, (m10 - m01) / s]
+    norm = math.copysign(math.sqrt(sum(c * c for c in q)), q[3] if q[3] != 0.0 else 1.0)
+    return [float(v) for v in np.asarray(T, float)[:3, 3]], [c / norm for c in q]
 
 
 def pq_to_pose(pos: Sequence[float], quat: Sequence[float]) -> np.ndarray:
     """4x4 pose from a position and pybullet quaternion (x, y, z, w)."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(quat).as_matrix()
-    T[:3, 3] = pos
-    return T
+    x, y, z, w = quat
+    n = x * x + y * y + z * z + w * w
+    s = 2.0 / n if n > 0 else 0.0
+    return np.array([
+        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), pos[0]],
+        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w), pos[1]],
+        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y), pos[2]],
+        [0.0, 0.0, 0.0, 1.0],
+    ], dtype=float)
 
 
 def _T_link_inertial(client: int, body: int) -> np.ndarray:

@@ -1,0 +1,237 @@
+"""Grasps to and from JSON, and a pybullet-ready scene as a zip.
+
+JSON layout (``FORMAT``, version ``VERSION``; frame "world": the table top is z = 0, +z up;
+lengths in metres, angles in radians, except the execution errors, as named in ``units``)::
+
+    {"format": "shapeviewer.grasps", "version": 1, "frame": "world", "units": {...}, "meta": {...},
+     "grasps": [{"hand": "barrett", "frame": "world",
+                 "T_world_palm": 4x4 rows, "position": [x, y, z], "quaternion_xyzw": [x, y, z, w],
+                 "approach": [x, y, z],
+                 "dof_names": [...], "dof_values": [...], "joint_names": [...], "joint_values": [...],
+                 "contacts": [{"link": ..., "position": [...], "normal": [...]}, ...],
+                 "epsilon": e, "volume": v, "energy": E, "force_closure": bool,
+                 "execution": null or {the executed state, "joint_error", "pose_error",
+                                       "start_clear", "approach_contact", "lift": null or {...}}}]}
+
+The palm frame is the hand URDF's base link frame (origin at the centre of the palm face, +z the
+approach). Reading uses ``T_world_palm``; position, quaternion, approach and force_closure are
+derived copies for other tools. Floats are written with Python's shortest round-trip repr, so a
+file read back gives bitwise the same values.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import trimesh
+
+from shapeviewer.grasp.execute import ExecutionResult, LiftResult
+from shapeviewer.grasp.hands import get_hand, pose_to_pq
+from shapeviewer.grasp.plan import Grasp, GraspContact, ProgressFn, plan_grasps
+from shapeviewer.grasp.world import convex_decomposition
+
+FORMAT = "shapeviewer.grasps"
+VERSION = 1
+UNITS = {"length": "m", "angle": "rad", "joint_error": "deg (mm for prismatic joints)", "pose_error": "mm"}
+
+
+@dataclass
+class GraspSet:
+    """Grasps read from JSON, each with its execution (or None), and the file's ``meta`` dict."""
+
+    grasps: list[Grasp]
+    executions: list[ExecutionResult | None]
+    meta: dict = field(default_factory=dict)
+
+
+def _floats(a) -> list:
+    return np.asarray(a, float).tolist()
+
+
+def _contacts_to_list(contacts: Sequence[GraspContact]) -> list[dict]:
+    return [{"link": c.link, "position": _floats(c.position), "normal": _floats(c.normal)} for c in contacts]
+
+
+def _contacts_from_list(items: list[dict]) -> tuple[GraspContact, ...]:
+    return tuple(GraspContact(c["link"], np.array(c["position"], float), np.array(c["normal"], float)) for c in items)
+
+
+def _state_to_dict(hand: str, T: np.ndarray, dofs: dict, joints: dict, contacts: Sequence[GraspContact],
+                   epsilon: float, volume: float) -> dict:
+    position, quaternion = pose_to_pq(T)
+    return {
+        "hand": hand, "frame": "world",
+        "T_world_palm": _floats(T), "position": position, "quaternion_xyzw": quaternion,
+        "approach": _floats(np.asarray(T)[:3, :3] @ np.asarray(get_hand(hand).approach, float)),
+        "dof_names": list(dofs), "dof_values": [float(v) for v in dofs.values()],
+        "joint_names": list(joints), "joint_values": [float(v) for v in joints.values()],
+        "contacts": _contacts_to_list(contacts),
+        "epsilon": float(epsilon), "volume": float(volume), "force_closure": bool(epsilon > 0.0),
+    }
+
+
+def _named(d: dict, names: str, values: str) -> dict[str, float]:
+    return dict(zip(d[names], map(float, d[values])))
+
+
+def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dict:
+    """One grasp (and its execution, if any) as a JSON-ready dict."""
+    d = _state_to_dict(grasp.hand, grasp.T_world_palm, grasp.dofs, grasp.joints, grasp.contacts, grasp.epsilon,
+                       grasp.volume)
+    d["energy"] = float(grasp.energy)
+    d["execution"] = None
+    if execution is not None:
+        e = _state_to_dict(execution.hand, execution.T_world_palm, execution.dofs, execution.joints,
+                           execution.contacts, execution.epsilon, execution.volume)
+        e.update(joint_error=float(execution.joint_error), pose_error=float(execution.pose_error),
+                 start_clear=bool(execution.start_clear), approach_contact=bool(execution.approach_contact),
+                 lift=None if execution.lift is None else {
+                     "success": bool(execution.lift.success), "rise": float(execution.lift.rise),
+                     "slip": float(execution.lift.slip)})
+        d["execution"] = e
+    return d
+
+
+def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
+    """Inverse of :func:`grasp_to_dict`."""
+    grasp = Grasp(d["hand"], np.array(d["T_world_palm"], float), _named(d, "dof_names", "dof_values"),
+                  _named(d, "joint_names", "joint_values"), _contacts_from_list(d["contacts"]),
+                  float(d["epsilon"]), float(d["volume"]), float(d["energy"]), d.get("frame", "world"))
+    e = d.get("execution")
+    if e is None:
+        return grasp, None
+    lift = None if e.get("lift") is None else LiftResult(bool(e["lift"]["success"]), float(e["lift"]["rise"]),
+                                                         float(e["lift"]["slip"]))
+    execution = ExecutionResult(
+        e["hand"], np.array(e["T_world_palm"], float), _named(e, "dof_names", "dof_values"),
+        _named(e, "joint_names", "joint_values"), _contacts_from_list(e["contacts"]), float(e["epsilon"]),
+        float(e["volume"]), float(e["joint_error"]), float(e["pose_error"]), bool(e["start_clear"]),
+        bool(e["approach_contact"]), lift, e.get("frame", "world"))
+    return grasp, execution
+
+
+def grasps_to_json(grasps: Sequence[Grasp], executions: Sequence[ExecutionResult | None] | None = None,
+                   meta: dict | None = None) -> str:
+    """The grasps (and executions, index-aligned, None where absent) as a JSON document, one
+    grasp per line."""
+    executions = list(executions) if executions is not None else [None] * len(grasps)
+    if len(executions) != len(grasps):
+        raise ValueError(f"{len(executions)} executions for {len(grasps)} grasps")
+    head = {"format": FORMAT, "version": VERSION, "frame": "world", "units": UNITS, "meta": meta or {}}
+    lines = [f' "{k}": {json.dumps(v)},' for k, v in head.items()]
+    items = ",\n  ".join(json.dumps(grasp_to_dict(g, e)) for g, e in zip(grasps, executions))
+    return "{\n" + "\n".join(lines) + '\n "grasps": [\n  ' + items + "\n ]\n}\n"
+
+
+def grasps_from_json(text: str | bytes) -> GraspSet:
+    """Read a document written by :func:`grasps_to_json`."""
+    doc = json.loads(text)
+    if doc.get("format") != FORMAT or doc.get("version") != VERSION:
+        raise ValueError(f"not a {FORMAT} v{VERSION} document: {doc.get('format')!r} v{doc.get('version')!r}")
+    pairs = [grasp_from_dict(d) for d in doc["grasps"]]
+    return GraspSet([g for g, _ in pairs], [e for _, e in pairs], doc.get("meta", {}))
+
+
+# ---------------------------------------------------------------------------------------------
+# A pybullet-ready scene.
+
+_README = """A grasp scene exported by shapeviewer (frame "world": the table top is z = 0, +z up; metres).
+
+object.obj            the object's mesh in the world frame (visual)
+object_collision.obj  its convex decomposition (V-HACD parts: pybullet collides with each)
+object.urdf           the object: visual object.obj, collision object_collision.obj, {mass} kg
+hands/                the hand URDFs; a hand's base link frame is its palm frame (origin at the
+                      centre of the palm face, +z the approach)
+grasps.json           the grasps (palm pose, joint values, contacts, qualities; see its "units")
+
+    import json, pybullet as p
+    p.connect(p.GUI)
+    p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE))          # the table
+    obj = p.loadURDF("object.urdf", useFixedBase=True)
+    g = json.load(open("grasps.json"))["grasps"][0]
+    hand = p.loadURDF("hands/{urdf}", g["position"], g["quaternion_xyzw"], useFixedBase=True)
+    names = {{p.getJointInfo(hand, i)[1].decode(): i for i in range(p.getNumJoints(hand))}}
+    for name, q in zip(g["joint_names"], g["joint_values"]):
+        p.resetJointState(hand, names[name], q)
+"""
+
+
+def _object_urdf(mesh: trimesh.Trimesh, mass: float) -> str:
+    com = mesh.center_mass if mesh.is_watertight else mesh.centroid
+    if mesh.is_watertight and mesh.volume > 0:
+        inertia = mesh.moment_inertia * (mass / mesh.mass)  # about the centre of mass, world axes
+    else:
+        inertia = np.diag(mass * np.sum(mesh.extents ** 2) / 12.0 * np.ones(3))
+    (ixx, ixy, ixz), (_, iyy, iyz), (_, _, izz) = inertia
+    xyz = " ".join(f"{v:.9g}" for v in com)
+    return f"""<?xml version="1.0"?>
+<robot name="object">
+  <link name="object">
+    <inertial><origin xyz="{xyz}" rpy="0 0 0"/><mass value="{mass:.9g}"/>
+      <inertia ixx="{ixx:.9g}" ixy="{ixy:.9g}" ixz="{ixz:.9g}"
+               iyy="{iyy:.9g}" iyz="{iyz:.9g}" izz="{izz:.9g}"/></inertial>
+    <visual><geometry><mesh filename="object.obj"/></geometry></visual>
+    <collision><geometry><mesh filename="object_collision.obj"/></geometry></collision>
+  </link>
+</robot>
+"""
+
+
+def scene_zip(mesh_world: trimesh.Trimesh, grasps: Sequence[Grasp],
+              executions: Sequence[ExecutionResult | None] | None = None, meta: dict | None = None,
+              mass: float = 0.2) -> bytes:
+    """A zip (bytes) of the object (OBJ, convex decomposition, URDF), the hands used and
+    grasps.json, loadable in pybullet as its README shows. ``mesh_world``: world frame, metres."""
+    hands = sorted({g.hand for g in grasps}) or ["barrett"]
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("object.obj", trimesh.exchange.obj.export_obj(mesh_world, include_normals=False,
+                                                                  include_texture=False))
+        z.writestr("object_collision.obj", convex_decomposition(mesh_world).read_bytes())
+        z.writestr("object.urdf", _object_urdf(mesh_world, mass))
+        for name in hands:
+            urdf = get_hand(name).urdf
+            z.writestr(f"hands/{urdf.name}", urdf.read_bytes())
+            if (urdf.parent / "LICENSE.txt").exists():  # the Panda's files come from pybullet_data
+                z.writestr(f"hands/{name}_LICENSE.txt", (urdf.parent / "LICENSE.txt").read_bytes())
+            # Mesh files the URDF names (the Panda's), next to it as it expects.
+            for mesh_path in sorted({g.mesh_path for geoms in get_hand(name).model.visuals.values()
+                                     for g in geoms if g.mesh_path is not None}):
+                z.writestr(f"hands/{mesh_path.relative_to(urdf.parent).as_posix()}", mesh_path.read_bytes())
+        z.writestr("grasps.json", grasps_to_json(grasps, executions, meta))
+        z.writestr("README.txt", _README.format(mass=mass, urdf=get_hand(hands[0]).urdf.name))
+    return buf.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------
+# Headless use (``shapeviewer grasp MESH --hand barrett --out grasps.json``).
+
+def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "barrett", n_grasps: int = 20,
+                   seed: int = 0, on_table: bool = True, budget_seconds: float | None = None,
+                   progress: ProgressFn | None = None) -> list[Grasp]:
+    """Plan grasps on the mesh file ``mesh_path`` (metres, z up) and write them to ``out_path``:
+    grasps.json, or the pybullet scene when the name ends in ``.zip``.
+
+    ``on_table``: first move the mesh up or down so that its lowest point rests on the table
+    (z = 0); the shift is recorded as ``meta["T_world_mesh"]``. Returns the grasps.
+    """
+    mesh = trimesh.load(mesh_path, force="mesh")
+    T = np.eye(4)
+    if on_table:
+        T[2, 3] = -float(mesh.bounds[0, 2])
+        mesh.apply_transform(T)
+    grasps = plan_grasps(mesh, hand=hand, n_grasps=n_grasps, seed=seed, budget_seconds=budget_seconds,
+                         progress=progress)
+    meta = {"source": str(mesh_path), "T_world_mesh": _floats(T), "hand": hand, "seed": seed}
+    out_path = Path(out_path)
+    if out_path.suffix == ".zip":
+        out_path.write_bytes(scene_zip(mesh, grasps, meta=meta))
+    else:
+        out_path.write_text(grasps_to_json(grasps, meta=meta))
+    return grasps
