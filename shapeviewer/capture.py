@@ -2,16 +2,30 @@
 
 A :class:`Capture` is what every later stage starts from, whether it came from the simulated
 Kinect of a generated scene (:mod:`shapeviewer.scene`) or from a real sensor file.
+
+Real files are read with :func:`load_capture` (dispatching on the suffix):
+
+* ``.pcd`` / ``.ply`` point clouds (:func:`load_cloud`): ascii, binary or (PCD) binary_compressed,
+  organized or not, NaN rows allowed. Points are taken to be in the camera optical frame, metres
+  (a PCD's VIEWPOINT is ignored). Organized clouds get intrinsics fitted to their points.
+* ``.png`` (uint16 millimetres) / ``.npy`` (float metres) depth images (:func:`load_depth`).
+
+Every problem with a file raises :class:`CaptureError` naming the file and what is wrong with it.
 """
 
 from __future__ import annotations
 
+import logging
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from .camera import Intrinsics
+from .camera import Intrinsics, backproject
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -67,3 +81,361 @@ class Capture:
     def valid_mask(self) -> np.ndarray:
         """(N,) bool: rows of ``flat_points()`` that are finite."""
         return np.isfinite(self.flat_points()).all(axis=1)
+
+
+class CaptureError(ValueError):
+    """A capture file that cannot be read; the message names the file and what is wrong with it."""
+
+
+CLOUD_SUFFIXES = (".pcd", ".ply")
+DEPTH_SUFFIXES = (".png", ".npy")
+# PCD and PLY headers are a few hundred bytes; this many lines without the end of the header means
+# the file is not what its suffix says.
+_MAX_HEADER_LINES = 200
+# A pinhole model fitted to an organized cloud must reproduce its pixel grid this well (RMS pixels),
+# otherwise the cloud is not in its camera's optical frame and the fit means nothing.
+_MAX_FIT_RMS_PX = 0.5
+
+
+def load_capture(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
+    """Read a point cloud (``.pcd``, ``.ply``) or a depth image (``.png``, ``.npy``).
+
+    Args:
+        path: the file.
+        intrinsics: the camera's intrinsics. Depth images need them (default: the Kinect's, see
+            :func:`load_depth`); organized clouds get them fitted when omitted.
+
+    Raises:
+        CaptureError: the file is missing, of an unsupported type, or unreadable.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in CLOUD_SUFFIXES:
+        return load_cloud(path, intrinsics)
+    if suffix in DEPTH_SUFFIXES:
+        return load_depth(path, intrinsics)
+    raise CaptureError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; "
+                       f"expected a point cloud ({', '.join(CLOUD_SUFFIXES)}) or a depth image "
+                       f"({', '.join(DEPTH_SUFFIXES)})")
+
+
+def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
+    """Read a ``.pcd`` or ``.ply`` point cloud, keeping NaN rows and the organization.
+
+    A PCD is organized when its HEIGHT is over 1; a PLY when it carries PCL's
+    ``obj_info num_cols`` / ``num_rows`` lines. Organized clouds come back as (H, W, 3).
+
+    Args:
+        path: the file. Points are taken as camera optical frame metres (x right, y down, z forward).
+        intrinsics: the camera's intrinsics. Organized clouds must match their size; when omitted
+            they are fitted to the points (:func:`fit_intrinsics`). Unorganized clouds keep what is
+            given (None by default).
+
+    Raises:
+        CaptureError: missing/empty file, corrupt header, truncated data, no finite point, or
+            intrinsics of the wrong size.
+    """
+    import open3d as o3d
+
+    path = _check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".pcd":
+        n_points, width, height = _pcd_layout(path)
+    elif suffix == ".ply":
+        n_points, width, height = _ply_layout(path)
+    else:
+        raise CaptureError(f"{path}: not a point cloud file (expected {' or '.join(CLOUD_SUFFIXES)})")
+    # Our own header checks above catch what Open3D would only warn about (or fill with zeros).
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cloud = o3d.io.read_point_cloud(str(path), format=suffix[1:], remove_nan_points=False,
+                                        remove_infinite_points=False)
+    points = np.asarray(cloud.points, dtype=np.float64)
+    if len(points) != n_points:
+        raise CaptureError(f"{path}: the header declares {n_points} points but {len(points)} could be read; "
+                           "the file is corrupt")
+    if not np.isfinite(points).all(axis=1).any():
+        raise CaptureError(f"{path}: none of its {n_points} points is finite (all NaN/inf)")
+    # Open3D decodes PCL's packed rgb/rgba (float or uint, ascii/binary/compressed) correctly.
+    colors = np.round(np.asarray(cloud.colors) * 255.0).astype(np.uint8) if cloud.has_colors() else None
+
+    if height > 1:
+        points = points.reshape(height, width, 3)
+        colors = None if colors is None else colors.reshape(height, width, 3)
+        if intrinsics is None:
+            intrinsics = fit_intrinsics(points, source=str(path))
+        elif (intrinsics.width, intrinsics.height) != (width, height):
+            raise CaptureError(f"{path}: the cloud is organized {width}x{height} but the given intrinsics "
+                               f"are for {intrinsics.width}x{intrinsics.height}")
+    return Capture(points_cam=points, colors=colors, intrinsics=intrinsics, source=str(path))
+
+
+def load_depth(path: str | os.PathLike, intrinsics: Intrinsics | None = None,
+               depth_scale: float | None = None) -> Capture:
+    """Read a depth image and back-project it into an organized (H, W, 3) camera-frame cloud.
+
+    Args:
+        path: ``.png`` (single-channel 16-bit, millimetres by default) or ``.npy`` (2-D float array,
+            metres by default). Zero, negative and non-finite depths are missing pixels (NaN points).
+        intrinsics: must match the image size. Default: the Kinect's (:meth:`Intrinsics.kinect`),
+            scaled to the image size when it is not 640x480 (logged).
+        depth_scale: stored units per metre (Open3D's convention). Default 1000 for PNG, 1 for NPY.
+
+    Raises:
+        CaptureError: missing/empty/unreadable file, not a single-channel depth image, no valid
+            pixel, a non-positive ``depth_scale`` or intrinsics of the wrong size.
+    """
+    path = _check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        raw, default_scale = _read_png_depth(path), 1000.0
+    elif suffix == ".npy":
+        raw, default_scale = _read_npy_depth(path), 1.0
+    else:
+        raise CaptureError(f"{path}: not a depth image file (expected {' or '.join(DEPTH_SUFFIXES)})")
+    scale = default_scale if depth_scale is None else float(depth_scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise CaptureError(f"{path}: depth_scale must be a positive number of units per metre, got {depth_scale!r}")
+    with np.errstate(invalid="ignore"):
+        depth = raw.astype(np.float32) / np.float32(scale)
+        valid = np.isfinite(depth) & (depth > 0)
+    if not valid.any():
+        raise CaptureError(f"{path}: no valid depth pixel (all {depth.size} are zero, negative or NaN)")
+    depth[~valid] = 0.0
+    intr = _depth_intrinsics(path, depth.shape, intrinsics)
+    return Capture(points_cam=backproject(depth, intr).astype(np.float64), intrinsics=intr, source=str(path))
+
+
+def fit_intrinsics(points_cam: np.ndarray, source: str = "cloud") -> Intrinsics | None:
+    """Pinhole intrinsics of an organized cloud, by least squares over its valid pixels.
+
+    Fits ``u = fx * x / z + cx`` and ``v = fy * y / z + cy`` where (u, v) is each point's pixel
+    (column, row). Returns None (and logs why) when there are too few valid pixels or when the
+    fit leaves over half a pixel RMS, i.e. the points are not in their camera's optical frame.
+
+    Args:
+        points_cam: (H, W, 3) camera-frame metres, NaN for invalid pixels.
+        source: what to call the cloud in log messages.
+    """
+    h, w = points_cam.shape[:2]
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(points_cam).all(axis=2) & (points_cam[..., 2] > 0)
+    v, u = np.nonzero(ok)
+    if len(u) < 10:
+        log.warning("%s: only %d valid pixels, intrinsics unknown", source, len(u))
+        return None
+    p = points_cam[v, u]
+    a, b = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+    if np.ptp(a) <= 0 or np.ptp(b) <= 0:
+        log.warning("%s: valid pixels span a single row or column, intrinsics unknown", source)
+        return None
+    fx, cx = np.polyfit(a, u, 1)
+    fy, cy = np.polyfit(b, v, 1)
+    rms = float(np.sqrt(np.mean((fx * a + cx - u) ** 2 + (fy * b + cy - v) ** 2)))
+    if rms > _MAX_FIT_RMS_PX:
+        log.warning("%s: the points do not project onto their pixels (pinhole fit RMS %.2f px), intrinsics unknown",
+                    source, rms)
+        return None
+    log.info("%s: fitted intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f (RMS %.3f px)", source, fx, fy, cx, cy, rms)
+    return Intrinsics(w, h, float(fx), float(fy), float(cx), float(cy))
+
+
+def _check_file(path: str | os.PathLike) -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise CaptureError(f"{path}: file not found")
+    if not path.is_file():
+        raise CaptureError(f"{path}: not a file")
+    if path.stat().st_size == 0:
+        raise CaptureError(f"{path}: the file is empty")
+    return path
+
+
+def _header_lines(path: Path, f, last_key: str) -> tuple[dict[str, list[str]], list[list[str]]]:
+    """Keyword lines of a text header up to and including ``last_key`` (read from open file ``f``).
+
+    Returns ``(last value of each key, every line in order)``; raises when ``last_key`` never comes.
+    """
+    keys: dict[str, list[str]] = {}
+    lines: list[list[str]] = []
+    for _ in range(_MAX_HEADER_LINES):
+        raw = f.readline(4096)
+        if not raw:
+            break
+        words = raw.decode("ascii", errors="replace").split()
+        if not words or words[0].startswith("#"):
+            continue
+        lines.append(words)
+        keys[words[0]] = words[1:]
+        if words[0] == last_key:
+            return keys, lines
+    raise CaptureError(f"{path}: corrupt or not a {path.suffix[1:].upper()} file: the header never reaches its "
+                       f"{last_key!r} line")
+
+
+def _header_ints(path: Path, keys: dict[str, list[str]], key: str, n: int | None = None) -> list[int]:
+    values = keys.get(key)
+    if values is None:
+        raise CaptureError(f"{path}: corrupt header: no {key} line")
+    try:
+        ints = [int(x) for x in values]
+    except ValueError:
+        raise CaptureError(f"{path}: corrupt header: {key} {' '.join(values)!r} is not a list of integers") from None
+    if (n is not None and len(ints) != n) or any(i < 0 for i in ints):
+        raise CaptureError(f"{path}: corrupt header: {key} {' '.join(values)!r} (expected {n or 'some'} "
+                           "non-negative integers)")
+    return ints
+
+
+def _pcd_layout(path: Path) -> tuple[int, int, int]:
+    """``(points, width, height)`` of a PCD after checking its header and that its data is complete."""
+    with open(path, "rb") as f:
+        keys, _ = _header_lines(path, f, "DATA")
+        data_offset = f.tell()
+        fields = keys.get("FIELDS", [])
+        if not {"x", "y", "z"} <= set(fields):
+            raise CaptureError(f"{path}: corrupt header or not a point cloud: FIELDS {' '.join(fields)!r} "
+                               "lacks x y z")
+        sizes = _header_ints(path, keys, "SIZE", len(fields))
+        counts = _header_ints(path, keys, "COUNT", len(fields)) if "COUNT" in keys else [1] * len(fields)
+        if len(keys.get("TYPE", [])) != len(fields):
+            raise CaptureError(f"{path}: corrupt header: TYPE does not list a type per field")
+        (width,), (height,) = _header_ints(path, keys, "WIDTH", 1), _header_ints(path, keys, "HEIGHT", 1)
+        (n_points,) = _header_ints(path, keys, "POINTS", 1) if "POINTS" in keys else (width * height,)
+        if n_points != width * height:
+            raise CaptureError(f"{path}: corrupt header: POINTS {n_points} is not WIDTH x HEIGHT "
+                               f"({width} x {height})")
+        if n_points == 0:
+            raise CaptureError(f"{path}: the cloud has no points")
+        kind = (keys["DATA"] or ["?"])[0]
+        needed = n_points * sum(s * c for s, c in zip(sizes, counts))
+        available = os.fstat(f.fileno()).st_size - data_offset
+        if kind == "ascii":
+            body = f.read().strip()
+            rows = body.count(b"\n") + 1 if body else 0
+            if rows < n_points:
+                raise CaptureError(f"{path}: truncated: {rows} of {n_points} point rows are present")
+        elif kind == "binary":
+            if available < needed:
+                raise CaptureError(f"{path}: truncated: {available} bytes of binary data, {n_points} points "
+                                   f"need {needed}")
+        elif kind == "binary_compressed":
+            sizes_raw = f.read(8)
+            if len(sizes_raw) < 8:
+                raise CaptureError(f"{path}: truncated: the compressed data block is missing")
+            packed, unpacked = np.frombuffer(sizes_raw, dtype="<u4")
+            if unpacked != needed:
+                raise CaptureError(f"{path}: corrupt: the compressed block unpacks to {unpacked} bytes, "
+                                   f"{n_points} points need {needed}")
+            if available - 8 < packed:
+                raise CaptureError(f"{path}: truncated: {available - 8} of {packed} compressed bytes are present")
+        else:
+            raise CaptureError(f"{path}: unsupported DATA {kind!r} (expected ascii, binary or binary_compressed)")
+    return n_points, width, height
+
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_layout(path: Path) -> tuple[int, int, int]:
+    """``(points, width, height)`` of a PLY after checking its header and that its vertices are complete.
+
+    Organized when PCL's ``obj_info num_cols W`` / ``obj_info num_rows H`` lines say so.
+    """
+    with open(path, "rb") as f:
+        if f.readline(16).strip() != b"ply":
+            raise CaptureError(f"{path}: not a PLY file (it does not start with 'ply')")
+        keys, lines = _header_lines(path, f, "end_header")
+        data_offset = f.tell()
+        fmt = (keys.get("format") or ["?"])[0]
+        if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+            raise CaptureError(f"{path}: corrupt header: unknown format {fmt!r}")
+        # elements in file order: [name, count, record bytes (None when it has list properties), props]
+        elements: list[list] = []
+        info: dict[str, str] = {}
+        for words in lines:
+            if words[0] == "element" and len(words) == 3 and words[2].isdigit():
+                elements.append([words[1], int(words[2]), 0, []])
+            elif words[0] == "property" and elements and len(words) >= 3:
+                el = elements[-1]
+                el[3].append(words[-1])
+                size = _PLY_SIZES.get(words[1]) if words[1] != "list" else None
+                el[2] = None if size is None or el[2] is None else el[2] + size
+            elif words[0] == "obj_info" and len(words) == 3:
+                info[words[1]] = words[2]
+            elif words[0] in ("element", "property"):
+                raise CaptureError(f"{path}: corrupt header line {' '.join(words)!r}")
+        names = [e[0] for e in elements]
+        if "vertex" not in names:
+            raise CaptureError(f"{path}: the PLY has no vertex element")
+        at = names.index("vertex")
+        _, n_points, record, props = elements[at]
+        if not {"x", "y", "z"} <= set(props):
+            raise CaptureError(f"{path}: the vertices have no x y z properties")
+        if n_points == 0:
+            raise CaptureError(f"{path}: the cloud has no points")
+        if fmt == "ascii":
+            rows_needed = sum(e[1] for e in elements[: at + 1])
+            body = f.read().strip()
+            rows = body.count(b"\n") + 1 if body else 0
+            if rows < rows_needed:
+                raise CaptureError(f"{path}: truncated: {rows} of the {rows_needed} data rows up to the last "
+                                   "vertex are present")
+        elif all(e[2] is not None for e in elements[: at + 1]):  # fixed-size records: sizes are known
+            needed = sum(e[1] * e[2] for e in elements[: at + 1])
+            available = os.fstat(f.fileno()).st_size - data_offset
+            if available < needed:
+                raise CaptureError(f"{path}: truncated: {available} bytes of binary data, the vertices need {needed}")
+    try:
+        width, height = int(info.get("num_cols", n_points)), int(info.get("num_rows", 1))
+    except ValueError:
+        width, height = n_points, 1
+    if width * height != n_points:  # obj_info that does not describe this cloud: ignore it
+        width, height = n_points, 1
+    return n_points, width, height
+
+
+def _read_png_depth(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            mode, depth = im.mode, np.asarray(im)
+    except Exception as e:  # PIL raises OSError, SyntaxError, ValueError... for broken files
+        raise CaptureError(f"{path}: not a readable PNG image ({e})") from None
+    if not mode.startswith("I"):
+        raise CaptureError(f"{path}: a {mode} image, not a depth image; expected a single-channel 16-bit PNG "
+                           "of millimetres")
+    return depth
+
+
+def _read_npy_depth(path: Path) -> np.ndarray:
+    try:
+        depth = np.load(path, allow_pickle=False)
+    except Exception as e:  # ValueError, OSError, EOFError... for broken files
+        raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
+    if not isinstance(depth, np.ndarray) or depth.ndim != 2:
+        shape = getattr(depth, "shape", type(depth).__name__)
+        raise CaptureError(f"{path}: expected a 2-D (H, W) depth array in metres, got {shape}")
+    if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
+        raise CaptureError(f"{path}: expected a numeric depth array, got dtype {depth.dtype}")
+    return depth
+
+
+def _depth_intrinsics(path: Path, shape: tuple[int, int], intrinsics: Intrinsics | None) -> Intrinsics:
+    h, w = shape
+    if intrinsics is not None:
+        if (intrinsics.width, intrinsics.height) != (w, h):
+            raise CaptureError(f"{path}: the depth image is {w}x{h} but the given intrinsics are for "
+                               f"{intrinsics.width}x{intrinsics.height}")
+        return intrinsics
+    k = Intrinsics.kinect()
+    if (k.width, k.height) == (w, h):
+        return k
+    sx, sy = w / k.width, h / k.height
+    # Pixel centres sit at integer coordinates, so the principal point scales about -0.5.
+    scaled = Intrinsics(w, h, k.fx * sx, k.fy * sy, (k.cx + 0.5) * sx - 0.5, (k.cy + 0.5) * sy - 0.5)
+    log.info("%s: %dx%d depth image and no intrinsics given: using the Kinect's scaled to that size "
+             "(fx=%.1f fy=%.1f cx=%.1f cy=%.1f)", path, w, h, scaled.fx, scaled.fy, scaled.cx, scaled.cy)
+    return scaled

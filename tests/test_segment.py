@@ -1,0 +1,225 @@
+"""Segmentation (paper Fig. 5, step 2): plane removal and Euclidean clustering, synthetic and real."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shapeviewer.camera import look_at, transform_points
+from shapeviewer.capture import Capture, load_capture
+from shapeviewer.segment import SegmentationError, segment_scene, table_frame
+
+SPACING = 0.005  # m between synthetic surface samples
+
+
+def _box(centre_xy, size) -> np.ndarray:
+    """World points (m) on the sides and top of a box standing on z = 0.
+
+    Heights are sampled at 2.5 mm + k * 5 mm, so none lies near the 1.5 cm height cut.
+    """
+    (cx, cy), (sx, sy, sz) = centre_xy, size
+    zs = np.arange(SPACING / 2, sz, SPACING)
+    pts = []
+    for along, n in ((np.arange(-sx / 2, sx / 2, SPACING), "x"), (np.arange(-sy / 2, sy / 2, SPACING), "y")):
+        a, z = np.meshgrid(along, zs)
+        for side in (-1, 1):
+            if n == "x":
+                pts.append(np.stack([cx + a, np.full_like(a, cy + side * sy / 2), z], -1).reshape(-1, 3))
+            else:
+                pts.append(np.stack([np.full_like(a, cx + side * sx / 2), cy + a, z], -1).reshape(-1, 3))
+    gx, gy = np.meshgrid(np.arange(-sx / 2, sx / 2, SPACING), np.arange(-sy / 2, sy / 2, SPACING))
+    pts.append(np.stack([cx + gx, cy + gy, np.full_like(gx, zs[-1])], -1).reshape(-1, 3))
+    return np.concatenate(pts)
+
+
+def _cylinder(centre_xy, radius: float, height: float) -> np.ndarray:
+    angles = np.arange(0, 2 * np.pi, SPACING / radius)
+    a, z = np.meshgrid(angles, np.arange(SPACING / 2, height, SPACING))
+    return np.stack([centre_xy[0] + radius * np.cos(a), centre_xy[1] + radius * np.sin(a), z], -1).reshape(-1, 3)
+
+
+def _scene(extra: list[np.ndarray] = (), seed: int = 0):
+    """A noisy 1.2 m table with three objects (and ``extra`` world point sets) seen from above.
+
+    Returns ``(camera-frame points with NaN rows, truth label per row, T_world_cam)``; labels are
+    -2 for NaN rows, -1 for the table, k for the k-th object (left to right), 3+ for ``extra``.
+    """
+    rng = np.random.default_rng(seed)
+    gx, gy = np.meshgrid(np.arange(-0.6, 0.6, SPACING), np.arange(-0.6, 0.6, SPACING))
+    table = np.stack([gx.ravel(), gy.ravel(), rng.normal(0, 0.001, gx.size)], -1)
+    objects = [_box((-0.25, 0.1), (0.08, 0.06, 0.12)), _cylinder((0.0, 0.0), 0.04, 0.15),
+               _box((0.25, -0.1), (0.05, 0.05, 0.05)), *extra]
+    world = np.concatenate([table, *objects, np.full((500, 3), np.nan)])
+    labels = np.concatenate([np.full(len(table), -1)] + [np.full(len(o), k) for k, o in enumerate(objects)]
+                            + [np.full(500, -2)])
+    T_world_cam = look_at(np.array([0.0, -0.8, 0.7]), np.zeros(3))
+    order = rng.permutation(len(world))  # segment indices must survive any row order
+    points = transform_points(np.linalg.inv(T_world_cam), world[order])
+    return points, labels[order], T_world_cam
+
+
+def test_synthetic_scene_gives_one_segment_per_object() -> None:
+    points, truth, T_true = _scene()
+    seg = segment_scene(points)
+    assert len(seg.segments) == 3
+    for k, s in enumerate(seg.segments):  # numbered left to right, and world x grows to the right
+        world_z = transform_points(T_true, points[truth == k])[:, 2]
+        expected = np.flatnonzero(truth == k)[world_z >= 0.015]
+        np.testing.assert_array_equal(np.sort(s.indices), expected)
+        np.testing.assert_array_equal(s.points_cam, points[s.indices])
+        assert re.fullmatch(rf"segment {k} \({len(expected)} pts, \d+ cm\)", s.label)
+    assert len({tuple(s.color) for s in seg.segments}) == 3
+    # The estimated table frame: the table at z = 0, the camera 0.7 m above it, x along the camera's x.
+    table_world = transform_points(seg.T_world_cam, points[truth == -1])
+    assert np.abs(table_world[:, 2]).max() < 0.005
+    assert seg.T_world_cam[2, 3] == pytest.approx(0.7, abs=0.002)
+    assert seg.T_world_cam[0, 0] > 0.99
+    np.testing.assert_allclose(seg.plane_cam[:3] @ points[truth == -1].T + seg.plane_cam[3], 0, atol=0.005)
+    world_z = np.full(len(points), np.nan)
+    world_z[truth > -2] = transform_points(T_true, points[truth > -2])[:, 2]
+    assert np.abs(world_z[seg.table_indices]).max() < 0.012  # the table and the objects' bottom 1 cm
+    assert len(seg.table_indices) > 0.99 * (truth == -1).sum()
+    assert set(seg.timings) == {"prepare", "plane", "downsample", "cluster", "segments", "total"}
+
+
+def test_size_filters_and_height_band() -> None:
+    wall = _box((0.0, 0.4), (0.8, 0.02, 0.2))  # longer than max_extent
+    crumb = _box((-0.4, -0.3), (0.02, 0.02, 0.03))  # fewer than min_points
+    balloon = _box((0.4, 0.3), (0.05, 0.05, 0.05)) + [0, 0, 0.7]  # floats above max_height
+    points, truth, _ = _scene([wall, crumb, balloon])
+    assert (truth == 4).sum() < 200
+    seg = segment_scene(points)
+    assert len(seg.segments) == 3
+    assert not set(np.concatenate([s.indices for s in seg.segments])) & set(np.flatnonzero(truth >= 3))
+    assert len(segment_scene(points, max_extent=1.0).segments) == 4  # the wall is back
+    assert len(segment_scene(points, min_points=20).segments) == 4  # the crumb is back
+
+
+def test_table_frame_is_a_rigid_table_aligned_frame() -> None:
+    n = np.array([0.1, -0.8, -0.5])
+    n /= np.linalg.norm(n)
+    T = table_frame(np.append(n, 0.9))
+    R = T[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(T[:3, 3], [0, 0, 0.9], atol=1e-12)  # the camera, 0.9 m up
+    np.testing.assert_allclose(R @ n, [0, 0, 1], atol=1e-12)  # the normal is world up
+    foot = -0.9 * n + 0.3 * np.cross(n, [1, 0, 0])  # any point on the plane lands at z = 0
+    assert transform_points(T, foot[None])[0, 2] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_no_support_plane_clusters_everything() -> None:
+    cube = _box((0.0, 0.0), (0.2, 0.2, 0.2)) + [0, 0, 0.8]  # six planar faces, none table-sized
+    seg = segment_scene(cube)
+    assert seg.plane_cam is None and len(seg.table_indices) == 0
+    np.testing.assert_array_equal(seg.T_world_cam, np.eye(4))
+    assert len(seg.segments) == 1 and len(seg.segments[0].indices) == len(cube)
+
+
+def test_determinism() -> None:
+    points, _, _ = _scene(seed=3)
+    a, b = segment_scene(points, seed=7), segment_scene(points, seed=7)
+    np.testing.assert_array_equal(a.plane_cam, b.plane_cam)
+    np.testing.assert_array_equal(a.table_indices, b.table_indices)
+    assert [s.indices.tolist() for s in a.segments] == [s.indices.tolist() for s in b.segments]
+
+
+@pytest.mark.parametrize("points, message", [
+    (np.zeros((0, 3)), "empty"),
+    (np.full((100, 3), np.nan), "no finite points"),
+    (np.zeros((10, 2)), r"shape \(N, 3\)"),
+    ([["a", "b", "c"]], "not an array of numbers"),
+    (np.tile([0.0, 0.0, -1.0], (50, 1)), "in front of the camera"),
+])
+def test_unusable_input_raises(points, message: str) -> None:
+    with pytest.raises(SegmentationError, match=message):
+        segment_scene(points)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"voxel_size": 0.0}, "voxel_size"),
+    ({"cluster_tolerance": 0.005, "voxel_size": 0.01}, "at least voxel_size"),
+    ({"min_height": 0.2, "max_height": 0.1}, "min_height"),
+])
+def test_bad_parameters_raise(kwargs: dict, message: str) -> None:
+    with pytest.raises(SegmentationError, match=message):
+        segment_scene(_box((0, 0), (0.1, 0.1, 0.1)) + [0, 0, 1], **kwargs)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 50])
+def test_too_few_points_give_no_segments(n: int) -> None:
+    pts = np.random.default_rng(0).uniform(-0.1, 0.1, (n, 3)) + [0, 0, 1]
+    assert segment_scene(pts).segments == []
+
+
+# ---------------------------------------------------------------------------------------------
+# Real captures (PCL test data, ../shared/data/real)
+
+def _pixel_boxes(seg, width: int = 640):
+    """(row min, row max, col min, col max) of every segment's pixels."""
+    out = []
+    for s in seg.segments:
+        r, c = np.divmod(s.indices, width)
+        out.append((r.min(), r.max(), c.min(), c.max()))
+    return out
+
+
+def _segments_inside(seg, box, min_points: int) -> list:
+    r0, r1, c0, c1 = box
+    return [s for s, (a, b, c, d) in zip(seg.segments, _pixel_boxes(seg))
+            if len(s.indices) >= min_points and a >= r0 and b <= r1 and c >= c0 and d <= c1]
+
+
+@pytest.fixture(scope="module")
+def milk_clorox(real_data: Path) -> Capture:
+    return load_capture(real_data / "milk_cartoon_all_small_clorox.pcd")
+
+
+def test_milk_clorox_floor_removed_and_objects_whole(milk_clorox: Capture) -> None:
+    seg = segment_scene(milk_clorox)
+    assert -seg.plane_cam[1] > 0.7  # the floor, seen from above
+    assert len(seg.table_indices) > 150_000
+    # detergent, milk carton, bleach bottle (handle included): one segment each. The fourth object
+    # (bottom-left) is closer than the Kinect's minimum range and has no depth at all.
+    for box in [(130, 310, 60, 220), (50, 240, 220, 340), (55, 270, 390, 515)]:
+        [obj] = _segments_inside(seg, box, 5000)
+        assert 0.15 < obj.extent.max() < 0.30
+    for s in seg.segments:
+        assert 0.05 <= s.extent.max() <= 0.35, s.label
+    # everything else is legs and casters of the office chair at the top edge, 1.5-2 m away
+    others = [s for s in seg.segments if len(s.indices) < 5000]
+    assert len(seg.segments) == 3 + len(others)
+    assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(seg.segments, _pixel_boxes(seg))
+               if s in others)
+
+
+def test_milk_clorox_is_deterministic(milk_clorox: Capture) -> None:
+    a, b = segment_scene(milk_clorox, seed=1), segment_scene(milk_clorox, seed=1)
+    np.testing.assert_array_equal(a.plane_cam, b.plane_cam)
+    assert [s.indices.tolist() for s in a.segments] == [s.indices.tolist() for s in b.segments]
+
+
+def test_mug_is_one_segment(real_data: Path) -> None:
+    seg = segment_scene(load_capture(real_data / "table_scene_mug_stereo_textured.pcd"))
+    [mug] = _segments_inside(seg, (200, 400, 290, 520), 5000)
+    assert 0.08 < mug.extent.max() < 0.18
+    assert [s for s in seg.segments if len(s.indices) >= 5000] == [mug]
+
+
+def test_laptop_and_tissue_box(real_data: Path) -> None:
+    seg = segment_scene(load_capture(real_data / "frame_20121214T142255.814212.pcd"))
+    [laptop] = _segments_inside(seg, (130, 340, 110, 400), 5000)
+    [tissues] = _segments_inside(seg, (160, 330, 360, 520), 5000)
+    assert laptop.extent.max() == pytest.approx(0.38, abs=0.05)
+    assert tissues.extent.max() == pytest.approx(0.24, abs=0.05)
+
+
+def test_segmented_milk_carton_without_plane(real_data: Path) -> None:
+    seg = segment_scene(load_capture(real_data / "milk.pcd"))
+    assert seg.plane_cam is None
+    np.testing.assert_array_equal(seg.T_world_cam, np.eye(4))
+    [carton] = seg.segments
+    assert len(carton.indices) == 13704 and 0.2 < carton.extent.max() < 0.3
