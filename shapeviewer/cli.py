@@ -1,7 +1,8 @@
 """The ``shapeviewer`` command: the viewer's jobs, headless.
 
     shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH]
-    shapeviewer complete INPUT --segment K|all --mode fast --out DIR
+    shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
+    shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
     shapeviewer objects
     shapeviewer generate --out DIR [--views N] [--backend process|ray]
     shapeviewer train --data DIR --run DIR [--steps N]
@@ -60,6 +61,7 @@ def cmd_complete(args) -> int:
     from . import export
     from .model import load_completer
     from .pipeline import SegmentTooSmallError, check_segment, complete_points
+    from .reconstruct import detailed_mesh
     from .segment import segment_scene
 
     out = Path(args.out)
@@ -70,8 +72,6 @@ def cmd_complete(args) -> int:
     seg = segment_scene(capture)
     T_world_cam = capture.T_world_cam if capture.objects else seg.T_world_cam
     completer = load_completer(args.weights)
-    if args.mode != "fast":
-        raise SystemExit(f"mode {args.mode!r} is not available yet (only 'fast')")
     wanted = seg.segments if args.segment == "all" else [s for s in seg.segments if str(s.id) == args.segment]
     if not wanted:
         raise SystemExit(f"no segment {args.segment!r}; the capture has segments {[s.id for s in seg.segments]}")
@@ -104,9 +104,29 @@ def cmd_complete(args) -> int:
         path.write_bytes(export.mesh_bytes(c.fast_mesh, args.format, args.frame, T_world_cam))
         e["mesh"] = {"fast": path.name, "frame": args.frame, "watertight": bool(c.fast_mesh.is_watertight),
                      "volume_m3": float(c.fast_mesh.volume)}
+        if args.mode == "detailed":
+            steps = {}
+            t0 = time.perf_counter()
+            mesh = detailed_mesh(c.probabilities, c.frame, s.points_cam, timings=steps)
+            c.timings["detailed_mesh"] = time.perf_counter() - t0
+            e["detailed_steps"] = steps
+            path = out / f"segment_{s.id}_detailed.{args.format}"
+            path.write_bytes(export.mesh_bytes(mesh, args.format, args.frame, T_world_cam))
+            e["mesh"].update({"detailed": path.name, "detailed_watertight": bool(mesh.is_watertight),
+                              "detailed_volume_m3": float(mesh.volume)})
     (out / "report.json").write_text(json.dumps(report, indent=1))
     done = sum("mesh" in e for e in report["segments"])
     print(f"{done}/{len(report['segments'])} segments completed -> {out}/report.json")
+    return 0
+
+
+def cmd_grasp(args) -> int:
+    from .grasp.export import plan_mesh_file
+
+    grasps = plan_mesh_file(args.mesh, args.out, hand=args.hand, n_grasps=args.n, seed=args.seed,
+                            on_table=not args.no_table, budget_seconds=args.budget)
+    best = max((g.epsilon for g in grasps), default=float("nan"))
+    print(f"{len(grasps)} grasps (best epsilon {best:.3f}) -> {args.out}")
     return 0
 
 
@@ -181,6 +201,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frame", default="world", choices=["world", "camera"])
     _add_input_args(s)
     s.set_defaults(func=cmd_complete)
+
+    s = sub.add_parser("grasp", help="plan grasps on a mesh file (metres, z up) and write JSON or a pybullet zip")
+    s.add_argument("mesh")
+    s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
+    s.add_argument("--n", type=int, default=20, help="number of distinct grasps")
+    s.add_argument("--out", required=True, help="grasps.json, or a .zip for the pybullet-ready scene")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--budget", type=float, default=None, help="planning time limit in seconds")
+    s.add_argument("--no-table", action="store_true", help="plan without a table below the object")
+    s.set_defaults(func=cmd_grasp)
 
     s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
     s.add_argument("--json", action="store_true")

@@ -251,7 +251,10 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
 
     t0 = time.perf_counter()
     merged = np.concatenate([obs, up_pts])
-    leaf = MERGE_LEAF_FACTOR * obs_nn
+    # The paper merges at (40 r)^3, i.e. a leaf of voxel_size / r; their code used 2 x the observed
+    # spacing. The larger of the two keeps the up-sampled CNN points (voxel_size / r apart) free of
+    # gaps at the merge resolution and bounds the grid for very dense clouds.
+    leaf = max(MERGE_LEAF_FACTOR * obs_nn, frame.voxel_size / r)
     origin = merged.min(0) - MERGE_PADDING * leaf
     shape = np.ceil((merged.max(0) + MERGE_PADDING * leaf - origin) / leaf).astype(int) + 1
     if np.prod(shape) > 400**3:
