@@ -52,8 +52,12 @@ def load_input(spec: str, seed: int = 0, intrinsics=None):
 def cmd_serve(args) -> int:
     from .viewer import serve
 
-    serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
-          intrinsics=_intrinsics(args))
+    try:
+        serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
+              intrinsics=_intrinsics(args))
+    except OSError as e:  # e.g. a bad --cloud path: say so instead of a traceback
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -177,6 +181,11 @@ def cmd_evaluate_grids(args) -> int:
         print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps(r, indent=1))
+    if args.card:
+        from .train import model_card
+
+        Path(args.card).write_text(model_card(completer, r, args.data))
+        print(f"model card -> {args.card}")
     return 0
 
 
@@ -186,8 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("serve", help="start the web viewer (same as python app.py)")
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=8080)
+    s.add_argument("--host", default="127.0.0.1", help="interface to listen on (0.0.0.0 for all)")
+    s.add_argument("--port", type=int, default=8080, help="port (the next free one is used if busy)")
     s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
     _add_input_args(s)
     s.set_defaults(func=cmd_serve)
@@ -245,13 +254,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--views", type=int, default=500)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json", default=None, help="also write the figures to this file")
+    s.add_argument("--card", default=None, help="write a model card (markdown) with these figures")
     s.set_defaults(func=cmd_evaluate_grids)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     try:
         return args.func(args)
     except (ValueError, FileNotFoundError, KeyError) as e:

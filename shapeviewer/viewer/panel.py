@@ -1,0 +1,136 @@
+"""The viewer's control panel: GUI handles only, no behaviour (the app wires the callbacks).
+
+Also the text the panel shows (markdown for the source, the model and the stage timings), built
+from plain values so that it can be tested without a server.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import viser
+
+from ..export import MESH_FORMATS
+
+NO_SEGMENT = "(none)"
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One stage of the pipeline drawn in the 3D view (its nodes live under ``/<key>``)."""
+
+    key: str
+    label: str
+    visible: bool
+    hint: str
+    available: bool = True
+
+
+LAYERS: tuple[Layer, ...] = (
+    Layer("cloud", "Cloud", True, "The full captured point cloud (paper Fig. 5, step 1)."),
+    Layer("segments", "Segments", True, "Object segments after table removal and Euclidean clustering (step 2)."),
+    Layer("cnn_input", "CNN input", True, "Occupied voxels of the 40^3 input grid of each completed segment (step 3)."),
+    Layer("cnn_output", "CNN output", False, "Voxels the CNN marks occupied (p > 0.5) (step 4)."),
+    Layer("fast_mesh", "Fast mesh", True, "Marching cubes of the CNN output, in metres (step 5a)."),
+    Layer("detailed_mesh", "Detailed mesh", False, "Not yet available: Algorithm 1's detailed mesh (step 5b).",
+          available=False),
+    Layer("grasps", "Grasps", False, "Not yet available: grasps planned on the completed mesh (step 6).",
+          available=False),
+)
+
+
+@dataclass
+class Panel:
+    """Handles of every control of the panel."""
+
+    status: viser.GuiMarkdownHandle
+    source: viser.GuiMarkdownHandle
+    seed: viser.GuiNumberHandle
+    new_scene: viser.GuiButtonHandle
+    cloud_path: viser.GuiTextHandle
+    load_cloud: viser.GuiButtonHandle
+    model: viser.GuiMarkdownHandle
+    segment: viser.GuiDropdownHandle
+    complete: viser.GuiButtonHandle
+    complete_all: viser.GuiButtonHandle
+    timings: viser.GuiMarkdownHandle
+    layers: dict[str, viser.GuiCheckboxHandle]
+    cloud_colors: viser.GuiDropdownHandle
+    shade_output: viser.GuiCheckboxHandle
+    export_frame: viser.GuiDropdownHandle
+    mesh_format: viser.GuiDropdownHandle
+    export_points: viser.GuiButtonHandle
+    export_grids: viser.GuiButtonHandle
+    export_mesh: viser.GuiButtonHandle
+
+    @property
+    def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
+        """Buttons that start a job; disabled while one runs (double clicks would queue jobs)."""
+        return (self.new_scene, self.load_cloud, self.complete, self.complete_all)
+
+
+def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
+    """Add the panel's controls to ``gui`` (all empty until a scene is loaded)."""
+    gui.add_markdown("**Shape completion** — Varley et al., IROS 2017. "
+                     "Click a segment in the 3D view to complete it.")
+    status = gui.add_markdown("_Loading the scene..._")
+    with gui.add_folder("Source"):
+        source = gui.add_markdown("")
+    with gui.add_folder("Model"):
+        model = gui.add_markdown("")
+    with gui.add_folder("Completion"):
+        segment = gui.add_dropdown("Segment", (NO_SEGMENT,), hint="Pick a segment to complete (or click it in 3D)")
+        complete = gui.add_button("Complete segment", icon=viser.Icon.CUBE, hint="Fast-complete the selected segment")
+        complete_all = gui.add_button("Complete all", icon=viser.Icon.BOX_MULTIPLE,
+                                      hint="Fast-complete every segment in one batched CNN pass")
+        timings = gui.add_markdown("_No completion yet._")
+    with gui.add_folder("Layers"):
+        layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint, disabled=not layer.available)
+                  for layer in LAYERS}
+        cloud_colors = gui.add_dropdown("Cloud colours", ("capture", "depth"),
+                                        hint="Colour the cloud with the sensor's colours or by depth")
+        shade_output = gui.add_checkbox("Shade by p", True,
+                                        hint="Colour CNN output voxels by occupancy probability (yellow 0.5, red 1)")
+    with gui.add_folder("Load a scene"):
+        seed_h = gui.add_number("Seed", seed, min=0, step=1, hint="Seed of the generated tabletop scene")
+        new_scene = gui.add_button("New scene", icon=viser.Icon.DICE, hint="Generate the tabletop scene of this seed")
+        cloud_path = gui.add_text("Cloud path", "", hint=".pcd/.ply point cloud, or a depth image (.png mm, .npy m)")
+        load_cloud = gui.add_button("Load capture", icon=viser.Icon.FOLDER_OPEN)
+    with gui.add_folder("Export", expand_by_default=False):
+        export_frame = gui.add_dropdown("Frame", ("world", "camera"), hint="Coordinates of exported points and meshes")
+        mesh_format = gui.add_dropdown("Mesh format", MESH_FORMATS)
+        export_points = gui.add_button("Segment points (PLY)", icon=viser.Icon.DOWNLOAD)
+        export_grids = gui.add_button("CNN grids (NPZ)", icon=viser.Icon.DOWNLOAD,
+                                      hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
+        export_mesh = gui.add_button("Fast mesh", icon=viser.Icon.DOWNLOAD)
+    return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, segment, complete, complete_all,
+                 timings, layers, cloud_colors, shade_output, export_frame, mesh_format, export_points,
+                 export_grids, export_mesh)
+
+
+def source_markdown(source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float,
+                    frame_note: str) -> str:
+    """What was loaded: name, valid/total points, segments, segmentation time, which world frame."""
+    return (f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments  \n"
+            f"segmentation {seg_seconds * 1000:.0f} ms · {frame_note}")
+
+
+def model_markdown(arch: str, source: str, trained: bool, meta: dict) -> str:
+    """Architecture, weights file, training facts (steps, Jaccard per evaluation set) or a red warning."""
+    lines = [f"**{arch}** · weights: `{source}`"]
+    if trained:
+        facts = [f"{meta['steps']:,} training steps"] if "steps" in meta else []
+        jaccard = [f"{name.replace('_', ' ')} {v['jaccard']:.2f}" for name, v in meta.get("eval", {}).items()
+                   if isinstance(v, dict) and "jaccard" in v]
+        if jaccard:
+            facts.append("Jaccard: " + ", ".join(jaccard))
+        lines.extend(facts)
+    else:
+        lines.append('<span style="color:#d32f2f">**⚠ Untrained weights: completions are not meaningful.**</span>')
+    return "  \n".join(lines)
+
+
+def timings_markdown(title: str, rows: list[tuple[str, float]]) -> str:
+    """A small table of stage times (seconds) for the last completion."""
+    body = "\n".join(f"| {stage} | {seconds * 1000:.1f} ms |" for stage, seconds in rows)
+    return f"{title}\n\n| stage | time |\n|---|---:|\n{body}"

@@ -1,0 +1,121 @@
+"""The viewer in a real browser: headless Debian Chromium (Playwright) clicks a segment on the canvas.
+
+The app runs in this process, so the test reads the browser's camera server-side
+(``client.camera``), projects a segment's centroid (world frame) to canvas pixels, clicks there,
+and waits for the completion's scene nodes to appear on the server.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--no-first-run"]
+
+pytestmark = pytest.mark.browser
+
+try:
+    from playwright.sync_api import sync_playwright
+except ImportError:  # pragma: no cover - depends on the environment
+    sync_playwright = None
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until(predicate, timeout: float, what: str, step: float = 0.1):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(step)
+    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def reported_camera(client):
+    """The client's camera once it has reported one (viser asserts before the first report)."""
+    try:
+        cam = client.camera
+        cam.position  # noqa: B018 - raises AssertionError until the browser has sent its camera
+        return cam
+    except AssertionError:
+        return None
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian chromium not installed at /usr/bin/chromium "
+                                                   "(apt-get install chromium)")
+@pytest.mark.skipif(sync_playwright is None, reason="playwright (python) is not installed (pip install playwright)")
+def test_click_segment_completes_it(tmp_path):
+    import viser
+
+    from shapeviewer.viewer import ViewerApp
+    from shapeviewer.viewer.rays import project_to_pixels, ray_through
+
+    # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
+    app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1280, "height": 800})
+                page.goto(app.url)
+                page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
+                client = wait_until(lambda: next(iter(app.server.get_clients().values()), None), 15,
+                                    "the browser to connect")
+                cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+                canvas = page.locator("canvas").first
+                canvas.wait_for(state="visible", timeout=20_000)
+                box = canvas.bounding_box()
+
+                # Click the largest segment that is in view, not hidden behind another one and
+                # not under the control panel.
+                R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
+                target = None
+                for sid in sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s])):
+                    centroid = app.segment_centroid_world(sid)
+                    if app.pick(*ray_through(cam.position, centroid)) != sid:
+                        continue
+                    u, v = project_to_pixels(centroid[None], cam.position, R, cam.fov,
+                                             cam.image_width, cam.image_height)[0]
+                    x = box["x"] + u * box["width"] / cam.image_width
+                    y = box["y"] + v * box["height"] / cam.image_height
+                    if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS":
+                        target = (sid, x, y)
+                        break
+                assert target is not None, "no segment is visible on the canvas"
+                sid, x, y = target
+
+                # The canvas may not handle pointer events before its first frame: click again
+                # until the completion shows up (the app records it once all its nodes are added).
+                def completed() -> bool:
+                    return sid in app.completions
+
+                deadline = time.monotonic() + 45
+                while not completed() and time.monotonic() < deadline:
+                    page.mouse.click(x, y)
+                    try:
+                        wait_until(completed, 8, "the completion")
+                    except AssertionError:
+                        pass
+                assert completed(), f"clicking segment {sid} at ({x:.0f}, {y:.0f}) did not complete it"
+                for layer in ("fast_mesh", "cnn_input", "cnn_output"):
+                    assert app.server.scene.get_handle_by_name(f"/{layer}/seg_{sid}") is not None
+                assert app.selected == sid
+                assert app.last_timings["click_to_mesh"] > 0
+                time.sleep(2)  # let the browser draw the new nodes before the screenshot
+                page.screenshot(path=str(tmp_path / "completed.png"))
+            finally:
+                browser.close()
+    finally:
+        app.stop()

@@ -1,0 +1,235 @@
+"""The viewer without a browser: scene nodes, completion, loading errors, ray picking, export."""
+
+from __future__ import annotations
+
+import io
+import socket
+
+import numpy as np
+import pytest
+import trimesh
+
+from shapeviewer.camera import transform_points
+from shapeviewer.viewer import ViewerApp
+from shapeviewer.viewer.rays import pick_segment, project_to_pixels, ray_through
+from shapeviewer.viewer.visuals import surface_voxels
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def app():
+    app = ViewerApp(port=free_port(), seed=0)
+    yield app
+    app.stop()
+
+
+def node(app: ViewerApp, name: str):
+    return app.server.scene.get_handle_by_name(name)
+
+
+def completed_segment(app: ViewerApp) -> int:
+    """Id of a segment with a fast mesh (completing the largest segment if none is yet)."""
+    for sid, c in app.completions.items():
+        if c.fast_mesh is not None:
+            return sid
+    c = app.complete(max(app.scene.segments, key=lambda s: len(app.scene.points_world[s])))
+    assert c is not None and c.fast_mesh is not None
+    return c.segment_id
+
+
+def test_default_scene_is_drawn_in_world_frame(app):
+    scene = app.scene
+    assert scene is not None and scene.segments, "the default scene should have segments"
+    assert node(app, "/cloud/points") is not None
+    assert node(app, "/sensor") is not None
+    for sid in scene.segments:
+        assert node(app, f"/segments/seg_{sid}") is not None
+        assert node(app, f"/segments/label_{sid}") is not None
+    # World frame of a synthetic scene: the table top is z = 0 and objects stand on it.
+    allp = np.concatenate(list(scene.points_world.values()))
+    assert allp[:, 2].min() > -0.02
+    assert np.allclose(scene.T_world_cam, scene.capture.T_world_cam)
+    # Every pipeline layer has a root frame (its visibility checkbox toggles it).
+    for key in ("cloud", "segments", "cnn_input", "cnn_output", "fast_mesh", "detailed_mesh", "grasps"):
+        assert node(app, f"/{key}") is not None
+        assert key in app.panel.layers
+
+
+def test_layer_checkbox_hides_layer(app):
+    box = app.panel.layers["cloud"]
+    box.value = False
+    assert node(app, "/cloud").visible is False
+    box.value = True
+    assert node(app, "/cloud").visible is True
+
+
+def test_complete_segment_adds_grids_and_mesh(app):
+    sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
+    c = app.complete(sid)
+    assert c is not None and c.segment_id == sid
+    assert app.selected == sid
+    for layer in ("cnn_input", "cnn_output", "fast_mesh"):
+        assert node(app, f"/{layer}/seg_{sid}") is not None, layer
+    for k in ("segmentation", "voxelize", "cnn", "marching_cubes", "send", "click_to_mesh"):
+        assert app.last_timings[k] > 0, k
+    assert "click → mesh" in app.panel.timings.content
+    # The CNN input cubes sit on the segment's points (world frame): every occupied voxel centre is
+    # within a voxel diagonal of a segment point.
+    inp = node(app, f"/cnn_input/seg_{sid}")
+    centres = np.asarray(inp.batched_positions)
+    assert len(centres) == len(surface_voxels(c.grid_in))
+    pts = app.scene.points_world[sid]
+    nearest = np.min(np.linalg.norm(centres[:, None, :] - pts[None, ::7, :], axis=2), axis=1)
+    assert np.median(nearest) < c.frame.voxel_size
+    # The fast mesh is the camera-frame mesh mapped with T_world_cam.
+    mesh = node(app, f"/fast_mesh/seg_{sid}")
+    expect = transform_points(app.scene.T_world_cam, c.fast_mesh.vertices)
+    assert np.allclose(np.asarray(mesh.vertices), expect, atol=1e-5)
+
+
+def test_complete_all_is_one_batch(app):
+    done = app.complete_all()
+    assert {c.segment_id for c in done} <= set(app.scene.segments)
+    assert len(done) >= 1
+    for c in done:
+        assert node(app, f"/cnn_input/seg_{c.segment_id}") is not None
+    assert "All" in app.panel.timings.content
+
+
+def test_busy_guard_rejects_a_second_job(app):
+    assert app._job.acquire(blocking=False)
+    try:
+        assert app.complete(next(iter(app.scene.segments))) is None
+    finally:
+        app._job.release()
+    assert not app.panel.complete.disabled
+
+
+def test_bad_cloud_keeps_the_scene(app, tmp_path):
+    before = app.scene
+    assert app.load_cloud(tmp_path / "missing.pcd") is False
+    assert "missing.pcd" in app.last_error
+    corrupt = tmp_path / "corrupt.pcd"
+    corrupt.write_bytes(b"# .PCD v0.7\nFIELDS x y z\nthis is not a point cloud\n")
+    app.last_error = None
+    assert app.load_cloud(corrupt) is False
+    assert app.last_error and "corrupt.pcd" in app.last_error
+    assert app.scene is before
+    for sid in before.segments:
+        assert node(app, f"/segments/seg_{sid}") is not None
+
+
+def test_pick_ray_through_each_segment_centroid(app):
+    scene = app.scene
+    sensor = scene.T_world_cam[:3, 3]
+    for sid in scene.segments:
+        origin, direction = ray_through(sensor, app.segment_centroid_world(sid))
+        assert app.pick(origin, direction) == sid
+    # Straight up from above the objects: nothing there.
+    top = np.concatenate(list(scene.points_world.values())).max(axis=0) + 0.1
+    assert app.pick(top, np.array([0.0, 0.0, 1.0])) is None
+    # Towards the empty table far from every object.
+    far = np.concatenate(list(scene.points_world.values())).mean(axis=0) + np.array([3.0, 3.0, -0.1])
+    assert app.pick(*ray_through(sensor, far)) is None
+
+
+def test_pick_prefers_the_nearest_segment():
+    rng = np.random.default_rng(0)
+    blob = rng.normal(0, 0.02, (500, 3))
+    segments = {7: blob + [0, 0, 1.0], 3: blob + [0, 0, 2.0]}
+    assert pick_segment([0, 0, 0], [0, 0, 1], segments) == 7
+    assert pick_segment([0, 0, 3], [0, 0, -1], segments) == 3
+    assert pick_segment([0, 0, 0], [0, 0, -1], segments) is None  # both behind the origin
+    assert pick_segment([0.5, 0, 0], [0, 0, 1], segments) is None
+
+
+def test_projection_matches_a_ray():
+    # A camera at (0, -1, 0.5) looking at the origin (OpenCV axes: x right, y down, z forward).
+    from shapeviewer.camera import look_at
+
+    T = look_at([0, -1, 0.5], [0, 0, 0])
+    p = np.array([[0.0, 0.0, 0.0], [0.1, 0.05, 0.02]])
+    uv = project_to_pixels(p, T[:3, 3], T[:3, :3], fov=np.radians(60), width=800, height=600)
+    assert np.allclose(uv[0], [400, 300])
+    f = 300 / np.tan(np.radians(30))
+    ray_cam = np.array([(uv[1, 0] - 400) / f, (uv[1, 1] - 300) / f, 1.0])
+    _, d = ray_through(T[:3, 3], p[1])
+    assert np.allclose(T[:3, :3] @ ray_cam / np.linalg.norm(ray_cam), d, atol=1e-9)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj", "stl", "glb"])
+def test_export_mesh_formats(app, fmt):
+    sid = completed_segment(app)
+    for frame in ("world", "camera"):
+        name, data = app.export_bytes("mesh", sid, fmt, frame)
+        assert name.endswith(f".{fmt}") and frame in name
+        loaded = trimesh.load(io.BytesIO(data), file_type=fmt, force="mesh")
+        assert len(loaded.faces) == len(app.completions[sid].fast_mesh.faces)
+
+
+def test_export_points_and_grids(app):
+    sid = completed_segment(app)
+    name, data = app.export_bytes("points", sid, frame="world")
+    assert name.endswith(".ply") and len(trimesh.load(io.BytesIO(data), file_type="ply").vertices) > 0
+    name, data = app.export_bytes("grids", sid)
+    with np.load(io.BytesIO(data)) as z:
+        assert z["grid_in"].shape == (40, 40, 40) and z["probabilities"].dtype == np.float32
+        assert z["grid_to_camera"].shape == (4, 4)
+    with pytest.raises(ValueError, match="Select a segment"):
+        app.export_bytes("points", 10_000)
+
+
+def test_tiny_segment_gives_a_clear_error(app):
+    seg = app.scene.segments[next(iter(app.scene.segments))]
+    full = seg.points_cam
+    seg.points_cam = full[:10]
+    try:
+        app.last_error = None
+        assert app.complete(seg.id) is None
+        assert "valid points" in app.last_error
+    finally:
+        seg.points_cam = full
+
+
+def test_real_capture_is_drawn_on_its_table_plane(real_data):
+    app = ViewerApp(port=free_port(), cloud=real_data / "milk_cartoon_all_small_clorox.pcd")
+    try:
+        scene = app.scene
+        assert scene.title == "milk_cartoon_all_small_clorox.pcd"
+        assert np.allclose(scene.T_world_cam, scene.segmentation.T_world_cam)
+        # The table-aligned world frame puts the floor at z = 0 and the objects above it.
+        table = transform_points(scene.T_world_cam, scene.capture.flat_points()[scene.segmentation.table_indices])
+        assert abs(np.median(table[:, 2])) < 0.01
+        for sid, pts in scene.points_world.items():
+            assert np.median(pts[:, 2]) > 0, sid
+            assert node(app, f"/segments/seg_{sid}") is not None
+        sid = max(scene.segments, key=lambda s: len(scene.points_world[s]))
+        assert app.complete(sid) is not None
+        assert node(app, f"/fast_mesh/seg_{sid}") is not None
+    finally:
+        app.stop()
+
+
+def test_unorganized_cloud_without_colours_uses_depth_colours(real_data):
+    app = ViewerApp(port=free_port(), cloud=real_data / "milk.pcd")
+    try:
+        assert app.scene.capture.colors is None
+        assert app.panel.cloud_colors.value == "depth"
+        assert len(node(app, "/cloud/points").points) == int(app.scene.capture.valid_mask().sum())
+    finally:
+        app.stop()
+
+
+def test_model_panel_says_whether_weights_are_trained(app):
+    from shapeviewer.viewer.panel import model_markdown
+
+    warning = "Untrained weights: completions are not meaningful"
+    assert warning in model_markdown("unet3d", "untrained", False, {})
+    shown = model_markdown("unet3d", "unet3d.pt", True, {"steps": 1000, "eval": {"holdout_view": {"jaccard": 0.74}}})
+    assert warning not in shown and "1,000 training steps" in shown and "holdout view 0.74" in shown
+    assert (warning in app.panel.model.content) == (not app.completer.trained)
