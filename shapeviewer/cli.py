@@ -135,9 +135,15 @@ def cmd_grasp(args) -> int:
 
 
 def cmd_objects(args) -> int:
-    from .dataset import catalogue
+    from . import dataset
 
-    rows = catalogue()
+    if args.write_index:
+        dataset.catalogue.cache_clear()
+        for p in (dataset.cache_dir() / f"catalogue_v{dataset.CATALOGUE_VERSION}.json", dataset.SHIPPED_INDEX):
+            p.unlink(missing_ok=True)  # rebuild from the meshes themselves
+        dataset.write_index(dataset.catalogue(), Path(args.write_index))
+        print(f"catalogue index -> {args.write_index}")
+    rows = dataset.catalogue()
     if args.json:
         print(json.dumps([{"name": e.name, "split": e.split, "source": e.source,
                            "size_m": [round(x, 4) for x in e.extents]} for e in rows], indent=1))
@@ -223,6 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
     s.add_argument("--json", action="store_true")
+    s.add_argument("--write-index", default=None, metavar="PATH",
+                   help="process every mesh again and write the index (static_assets/catalogue.json ships one)")
     s.set_defaults(func=cmd_objects)
 
     s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")

