@@ -161,7 +161,10 @@ def generate(out_dir: str | Path, config: GenerationConfig = GenerationConfig(),
     if backend == "ray":
         import ray
 
-        ray.init(ignore_reinit_error=True, log_to_driver=False)
+        if os.environ.get("RAY_ADDRESS"):  # an existing cluster
+            ray.init(ignore_reinit_error=True, log_to_driver=False)
+        else:  # a local instance on this machine's cores
+            ray.init(ignore_reinit_error=True, log_to_driver=False, include_dashboard=False, num_cpus=workers)
         remote = ray.remote(_task)
         pending = [remote.remote(t) for t in tasks]
         while pending:

@@ -214,6 +214,19 @@ def _for_inference(net: nn.Module, device: torch.device) -> nn.Module:
     return net
 
 
+def training_curves(completer: Completer) -> Path | None:
+    """The training-curve plot saved with a weights file, if any.
+
+    ``<weights>_jaccard.png`` beside the file (shipped weights) or ``jaccard.png`` in its folder
+    (a training run directory).
+    """
+    path = Path(completer.source)
+    for png in (path.with_name(path.stem + "_jaccard.png"), path.parent / "jaccard.png"):
+        if path.is_file() and png.is_file():
+            return png
+    return None
+
+
 class WeightsError(ValueError):
     """A weights file is missing, unreadable or does not match its architecture."""
 

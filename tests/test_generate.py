@@ -91,3 +91,18 @@ def test_split_rule_is_stable():
     assert 0.12 < frac < 0.18
     views = [dataset.view_split("ycb/025_mug", v) for v in range(726)]
     assert 0.15 < views.count("holdout_view") / 726 < 0.25
+
+
+def test_ray_backend_gives_the_same_shards(generated, tmp_path):
+    ray = pytest.importorskip("ray")
+    out, cfg, _ = generated
+    try:
+        r = generate(tmp_path, cfg, objects=["ycb/025_mug", "ycb/003_cracker_box"], workers=2, backend="ray",
+                     progress=False)
+    finally:
+        ray.shutdown()
+    assert r["errors"] == [] and r["objects"] == 2
+    for name in ("ycb__025_mug.npz", "ycb__003_cracker_box.npz"):
+        with np.load(out / "shards" / name) as a, np.load(tmp_path / "shards" / name) as b:
+            for k in ("x", "y", "views", "center"):
+                np.testing.assert_array_equal(a[k], b[k])

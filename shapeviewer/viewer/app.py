@@ -28,11 +28,12 @@ from pathlib import Path
 
 import numpy as np
 import viser
+from PIL import Image
 
 from .. import export
 from ..camera import Intrinsics, transform_points
 from ..capture import Capture, load_capture
-from ..model import load_completer
+from ..model import load_completer, training_curves
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points
 from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
@@ -133,6 +134,11 @@ class ViewerApp:
                 self.completer = load_completer(weights)
                 c = self.completer
                 self.panel.model.content = P.model_markdown(c.arch, Path(c.source).name, c.trained, c.meta)
+                curves = training_curves(c)
+                if curves is not None:  # the paper's Fig. 4 for these weights
+                    with self.panel.model_folder:
+                        self.server.gui.add_image(np.asarray(Image.open(curves).convert("RGB")),
+                                                  label="Jaccard during training", format="png")
                 if isinstance(cloud, Capture):
                     capture = cloud
                 elif cloud is not None:

@@ -50,6 +50,7 @@ class Panel:
     cloud_path: viser.GuiTextHandle
     load_cloud: viser.GuiButtonHandle
     model: viser.GuiMarkdownHandle
+    model_folder: viser.GuiFolderHandle
     segment: viser.GuiDropdownHandle
     complete: viser.GuiButtonHandle
     complete_all: viser.GuiButtonHandle
@@ -76,7 +77,7 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
     status = gui.add_markdown("_Loading the scene..._")
     with gui.add_folder("Source"):
         source = gui.add_markdown("")
-    with gui.add_folder("Model"):
+    with gui.add_folder("Model") as model_folder:
         model = gui.add_markdown("")
     with gui.add_folder("Completion"):
         segment = gui.add_dropdown("Segment", (NO_SEGMENT,), hint="Pick a segment to complete (or click it in 3D)")
@@ -103,7 +104,8 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
         export_grids = gui.add_button("CNN grids (NPZ)", icon=viser.Icon.DOWNLOAD,
                                       hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
         export_mesh = gui.add_button("Fast mesh", icon=viser.Icon.DOWNLOAD)
-    return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, segment, complete, complete_all,
+    return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, model_folder, segment, complete,
+                 complete_all,
                  timings, layers, cloud_colors, shade_output, export_frame, mesh_format, export_points,
                  export_grids, export_mesh)
 
