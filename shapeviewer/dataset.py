@@ -38,7 +38,8 @@ NAMED_PYBULLET = (
 )
 # Objects a hand can pick up: largest side between these (metres).
 GRASPABLE_SIZE = (0.02, 0.35)
-CATALOGUE_VERSION = 1
+CATALOGUE_VERSION = 2  # the index format
+MESH_CACHE_VERSION = 1  # how meshes are processed
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class ObjectEntry:
         name: unique name, e.g. ``ycb/003_cracker_box`` or ``random/042``.
         source: ``ycb`` or ``pybullet``.
         path: the file the mesh comes from, relative to its package's folder (site-packages).
-        scale: uniform scale applied to the file's coordinates to get metres.
+        scale: per-axis scale (x, y, z) applied to the file's coordinates to get metres.
         split: ``train`` or ``holdout_model``.
         extents: (3,) bounding box size in metres.
         faces: face count of the processed mesh.
@@ -58,7 +59,7 @@ class ObjectEntry:
     name: str
     source: str
     path: str
-    scale: float
+    scale: tuple
     split: str
     extents: tuple
     faces: int
@@ -109,23 +110,23 @@ def _pybullet_dir() -> Path:
     return Path(pybullet_data.getDataPath())
 
 
-def _urdf_mesh(urdf: Path) -> tuple[Path, float]:
-    """The visual mesh file and its (uniform) scale named in a single-link URDF."""
+def _urdf_mesh(urdf: Path) -> tuple[Path, tuple]:
+    """The visual mesh file and its (x, y, z) scale named in a single-link URDF."""
     text = urdf.read_text()
     visual = re.search(r"<visual>.*?</visual>", text, re.S)
     block = visual.group(0) if visual else text
     m = re.search(r'<mesh\s+filename="([^"]+)"(?:\s+scale="([^"]+)")?', block)
     if not m:
         raise ValueError(f"{urdf}: no mesh in URDF")
-    scale = float(m.group(2).split()[0]) if m.group(2) else 1.0
-    if m.group(2) and len(set(m.group(2).split())) > 1:
-        raise ValueError(f"{urdf}: non-uniform scale {m.group(2)}")
+    scale = tuple(float(v) for v in m.group(2).split()) if m.group(2) else (1.0, 1.0, 1.0)
+    if len(scale) != 3:
+        raise ValueError(f"{urdf}: scale {m.group(2)!r} is not three numbers")
     return urdf.parent / m.group(1), scale
 
 
 def _sources() -> list[tuple[str, str, Path, float]]:
     """(name, source, path, scale) for every candidate object."""
-    out = [(f"ycb/{p.stem}", "ycb", p, 1.0) for p in sorted(_ycb_dir().glob("*.stl"))]
+    out = [(f"ycb/{p.stem}", "ycb", p, (1.0, 1.0, 1.0)) for p in sorted(_ycb_dir().glob("*.stl"))]
     pb = _pybullet_dir()
     for d in sorted((pb / "random_urdfs").iterdir()):
         urdf = d / f"{d.name}.urdf"
@@ -166,14 +167,14 @@ def union_parts(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
     return trimesh.Trimesh(np.asarray(out.vert_properties)[:, :3], np.asarray(out.tri_verts), process=True)
 
 
-def process_mesh(path: Path, scale: float) -> trimesh.Trimesh:
+def process_mesh(path: Path, scale: tuple) -> trimesh.Trimesh:
     """Load a mesh file and make it a watertight solid in metres, or raise ValueError saying why."""
     mesh = trimesh.load(path, force="mesh", process=True)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError("no triangles")
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError("non-finite vertices")
-    mesh = trimesh.Trimesh(mesh.vertices * scale, mesh.faces, process=True)
+    mesh = trimesh.Trimesh(mesh.vertices * np.asarray(scale, dtype=np.float64), mesh.faces, process=True)
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
     # Stray slivers (YCB scans) and loose pieces: keep real bodies only.
     parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) > 10] or [mesh]
@@ -193,7 +194,7 @@ def process_mesh(path: Path, scale: float) -> trimesh.Trimesh:
 
 
 def _cache_path(name: str) -> Path:
-    return cache_dir() / f"meshes_v{CATALOGUE_VERSION}" / (name.replace("/", "__") + ".npz")
+    return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (name.replace("/", "__") + ".npz")
 
 
 def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
@@ -234,7 +235,7 @@ def _read_index(path: Path) -> tuple[ObjectEntry, ...] | None:
     data = json.loads(path.read_text())
     if data.get("versions") != _source_versions():
         return None
-    return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"])}) for d in data["objects"])
+    return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"]), "scale": tuple(d["scale"])}) for d in data["objects"])
 
 
 def write_index(entries: tuple[ObjectEntry, ...], path: Path) -> None:
