@@ -36,7 +36,7 @@ NAMED_PYBULLET = (
     ("mug", "objects/mug.urdf"),
     ("lego", "lego/lego.urdf"),
 )
-# Objects a hand can pick up: largest side between these (metres).
+# pybullet objects a hand can pick up: largest side between these (metres). Every YCB object is kept.
 GRASPABLE_SIZE = (0.02, 0.35)
 CATALOGUE_VERSION = 2  # the index format
 MESH_CACHE_VERSION = 1  # how meshes are processed
@@ -264,7 +264,7 @@ def catalogue() -> tuple[ObjectEntry, ...]:
         except Exception as e:  # any unreadable or broken file is skipped, not fatal
             log.info("skipping %s (%s): %s", name, path.name, e)
             continue
-        if not GRASPABLE_SIZE[0] <= mesh.extents.max() <= GRASPABLE_SIZE[1]:
+        if source != "ycb" and not GRASPABLE_SIZE[0] <= mesh.extents.max() <= GRASPABLE_SIZE[1]:
             log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
             continue
         _save_mesh(_cache_path(name), mesh)
