@@ -36,7 +36,10 @@ class Completion:
         probabilities: (40, 40, 40) float32 CNN output.
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
-        timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ...).
+        partial_mesh, mirror_mesh: the baselines' meshes of the same segment (camera frame, metres)
+            once computed.
+        timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
+            ``detailed_steps`` is the dict :func:`~shapeviewer.reconstruct.detailed_mesh` fills).
         error: why a mesh is missing, if it is.
     """
 
@@ -46,6 +49,8 @@ class Completion:
     probabilities: np.ndarray
     fast_mesh: trimesh.Trimesh | None
     detailed_mesh: trimesh.Trimesh | None = None
+    partial_mesh: trimesh.Trimesh | None = None
+    mirror_mesh: trimesh.Trimesh | None = None
     timings: dict = field(default_factory=dict)
     error: str | None = None
 

@@ -233,3 +233,47 @@ def test_model_panel_says_whether_weights_are_trained(app):
     shown = model_markdown("unet3d", "unet3d.pt", True, {"steps": 1000, "eval": {"holdout_view": {"jaccard": 0.74}}})
     assert warning not in shown and "1,000 training steps" in shown and "holdout view 0.74" in shown
     assert (warning in app.panel.model.content) == (not app.completer.trained)
+
+
+def test_detailed_mesh_is_drawn_stored_timed_and_exported(app):
+    sid = completed_segment(app)
+    mesh = app.compute_mesh("detailed", sid)
+    c = app.completions[sid]
+    assert mesh is not None and c.detailed_mesh is mesh and mesh.is_watertight
+    # Drawn in the world frame like the fast mesh, and its layer is switched on.
+    drawn = node(app, f"/detailed_mesh/seg_{sid}")
+    assert np.allclose(np.asarray(drawn.vertices), transform_points(app.scene.T_world_cam, mesh.vertices), atol=1e-5)
+    assert app.panel.layers["detailed_mesh"].value and node(app, "/detailed_mesh").visible
+    # The timings table splits the time by Algorithm 1's steps.
+    steps = c.timings["detailed_steps"]
+    for key in ("density", "upsample", "merge", "fill_gaps", "smooth", "marching_cubes"):
+        assert steps[key] >= 0, key
+    assert "detailed mesh" in app.panel.timings.content and "fill gaps" in app.panel.timings.content
+    name, data = app.export_bytes("mesh", sid, "ply", "world", mesh="detailed")
+    assert name.endswith("_detailed_world.ply") and data
+    assert len(trimesh.load(io.BytesIO(data), file_type="ply", force="mesh").faces) == len(mesh.faces)
+
+
+def test_baselines_complete_the_segment_first_and_get_their_own_layers(app):
+    sid = completed_segment(app)
+    app.completions.pop(sid)
+    for kind in ("partial", "mirror"):
+        mesh = app.compute_mesh(kind, sid)
+        assert mesh is not None and getattr(app.completions[sid], f"{kind}_mesh") is mesh
+        assert node(app, f"/{kind}_mesh/seg_{sid}") is not None
+        assert app.panel.layers[f"{kind}_mesh"].value
+    assert app.completions[sid].fast_mesh is not None
+    # A new completion of the segment has no baselines yet: their stale nodes go too.
+    app.complete(sid)
+    assert node(app, f"/partial_mesh/seg_{sid}") is None
+    with pytest.raises(ValueError, match="no mirror baseline yet"):
+        app.export_bytes("mesh", sid, mesh="mirror")
+
+
+def test_mirror_needs_a_support_plane(app, monkeypatch):
+    sid = completed_segment(app)
+    monkeypatch.setattr(app.scene.segmentation, "plane_cam", None)
+    app.last_error = None
+    assert app.compute_mesh("mirror", sid) is None
+    assert "support plane" in app.last_error
+    assert not app.panel.mirror.disabled

@@ -7,13 +7,13 @@ optical frame and are mapped with that ``T_world_cam`` before they are sent.
 
 Scene nodes: every pipeline stage is a layer, a frame ``/<layer key>`` (see :data:`panel.LAYERS`)
 whose children are that stage's nodes, e.g. ``/segments/seg_3``, ``/cnn_input/seg_3``,
-``/fast_mesh/seg_3``; the layer checkbox toggles the frame's visibility. ``/sensor`` is the camera
-frustum and ``/table`` the table-plane hint.
+``/fast_mesh/seg_3``, ``/detailed_mesh/seg_3``, ``/mirror_mesh/seg_3``; the layer checkbox toggles
+the frame's visibility. ``/sensor`` is the camera frustum and ``/table`` the table-plane hint.
 
 :class:`ViewerApp` can be driven without a browser (tests call :meth:`ViewerApp.complete`,
 :meth:`ViewerApp.pick`, ...); GUI callbacks call the same methods. Plain ``def`` callbacks run in
-viser's thread pool, so one lock serialises jobs (loading, completing) and the job buttons are
-disabled while one runs.
+viser's thread pool, so one lock serialises jobs (loading, completing, detailed and baseline
+meshes) and the job buttons are disabled while one runs.
 """
 
 from __future__ import annotations
@@ -27,14 +27,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
 import viser
 from PIL import Image
 
 from .. import export
+from ..baselines import mirror_mesh, partial_mesh
 from ..camera import Intrinsics, transform_points
 from ..capture import Capture, load_capture
 from ..model import load_completer, training_curves
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points
+from ..reconstruct import detailed_mesh
 from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
 from .rays import pick_segment
@@ -46,6 +49,14 @@ CLOUD_POINT_SIZE = 0.0015  # metres; viser draws points about twice this wide
 SEGMENT_POINT_SIZE = 0.002  # a little larger, so segment colours win over the cloud at the same spots
 INPUT_VOXEL_FILL = 0.5  # cube edge / voxel edge: small cubes let the fast mesh show between them
 OUTPUT_VOXEL_FILL = 0.95
+# Fixed colours for the baselines, so that they never pass for one of our own (segment-coloured) meshes.
+PARTIAL_COLOR = (160, 160, 160)
+MIRROR_COLOR = (110, 150, 215)
+MESH_TITLES = {"detailed": "Detailed mesh", "partial": "Partial baseline", "mirror": "Mirror baseline"}
+# Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
+ALGORITHM_1_STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge"),
+                     ("fill_gaps", "fill gaps"), ("smooth", "smooth"), ("marching_cubes", "marching cubes"))
+READY = "Ready. Click a segment to complete it."
 
 
 @dataclass
@@ -196,15 +207,47 @@ class ViewerApp:
         """Fast-complete every usable segment with one batched CNN pass (the paper's crowded scenes)."""
         return self._complete(None, client)
 
+    def compute_mesh(self, kind: str, segment_id: int | None = None,
+                     client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:
+        """Compute, store on the completion and draw a segment's ``detailed``, ``partial`` or ``mirror`` mesh.
+
+        The segment (default: the selected one) is fast-completed first if it has no completion yet.
+        Returns the camera-frame mesh, or None when it cannot be made or another job is running
+        (the client is told why).
+        """
+        if kind not in MESH_TITLES:
+            raise ValueError(f"unknown mesh {kind!r}; choose one of {tuple(MESH_TITLES)}")
+        sid = self.selected if segment_id is None else segment_id
+        if sid is None:
+            self._notify(client, "No segment selected", "Click a segment or pick one above.", "yellow")
+            return None
+        with self._job_slot(client) as ok:
+            if not ok or self.scene is None:
+                return None
+            if kind == "mirror" and self.scene.segmentation.plane_cam is None:
+                self._notify(client, "Mirror needs a support plane",
+                             "No table plane was found in this capture, and the Mirror baseline searches its "
+                             "symmetry plane perpendicular to the table.", "red")
+                return None
+            c = self.completions.get(sid)
+            if c is None:
+                done = self._complete_in_slot([sid], client)
+                if not done:
+                    return None
+                c = done[0]
+            self._select(sid)
+            return self._compute_mesh_in_slot(kind, c, client)
+
     def export_bytes(self, kind: str, segment_id: int | None = None, mesh_format: str = "ply",
-                     frame: str = "world") -> tuple[str, bytes]:
+                     frame: str = "world", mesh: str = "fast") -> tuple[str, bytes]:
         """``(file name, content)`` of an export of a segment (default: the selected one).
 
         Args:
             kind: ``points`` (PLY of the segment's points), ``grids`` (NPZ of the CNN input grid,
-                output probabilities and grid frame) or ``mesh`` (the fast mesh).
+                output probabilities and grid frame) or ``mesh``.
             mesh_format: ``ply``, ``obj``, ``stl`` or ``glb`` (meshes only).
             frame: ``world`` or ``camera`` coordinates (points and meshes; grids carry both).
+            mesh: which mesh, one of :data:`panel.MESH_KINDS` (``fast``, ``detailed``, ``partial``, ``mirror``).
 
         Raises:
             ValueError: with a message for the user (nothing selected, not completed yet, ...).
@@ -225,9 +268,15 @@ class ViewerApp:
         if kind == "grids":
             return f"{stem}_grids.npz", export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T)
         if kind == "mesh":
-            if c.fast_mesh is None:
+            if mesh not in P.MESH_KINDS:
+                raise ValueError(f"unknown mesh {mesh!r}; choose one of {P.MESH_KINDS}")
+            m = getattr(c, f"{mesh}_mesh")
+            if m is None and mesh == "fast":
                 raise ValueError(f"Segment {sid} has no fast mesh: {c.error}")
-            return f"{stem}_fast_{frame}.{mesh_format}", export.mesh_bytes(c.fast_mesh, mesh_format, frame, T)
+            if m is None:
+                raise ValueError(f"Segment {sid} has no {MESH_TITLES[mesh].lower()} yet: compute it in the "
+                                 "Completion folder first.")
+            return f"{stem}_{mesh}_{frame}.{mesh_format}", export.mesh_bytes(m, mesh_format, frame, T)
         raise ValueError(f"unknown export {kind!r}")
 
     # ------------------------------------------------------------------------------------------
@@ -238,46 +287,93 @@ class ViewerApp:
         with self._job_slot(client) as ok:
             if not ok or self.scene is None:
                 return []
-            single = ids is not None
-            if single:
-                missing = [i for i in ids if i not in self.scene.segments]
-                if missing:
-                    self._notify(client, "No such segment", f"Segment {missing[0]} is not in this scene.", "red")
-                    return []
-                self._select(ids[0])
-            usable, skipped = [], []
-            for sid in ids if single else list(self.scene.segments):
-                try:
-                    usable.append((sid, check_segment(self.scene.segments[sid].points_cam)))
-                except SegmentTooSmallError as e:
-                    skipped.append(f"segment {sid}: {e}")
-            if skipped:
-                self._notify(client, "Cannot complete" if single else "Some segments were skipped",
-                             "; ".join(skipped), "red" if single else "yellow")
-            if not usable:
+            return self._complete_in_slot(ids, client)
+
+    def _complete_in_slot(self, ids: list[int] | None, client: viser.ClientHandle | None) -> list[Completion]:
+        """:meth:`_complete` for a caller that holds the job slot (and has a scene)."""
+        single = ids is not None
+        if single:
+            missing = [i for i in ids if i not in self.scene.segments]
+            if missing:
+                self._notify(client, "No such segment", f"Segment {missing[0]} is not in this scene.", "red")
                 return []
-            what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
-            self.panel.status.content = f"_Completing {what}..._"
+            self._select(ids[0])
+        usable, skipped = [], []
+        for sid in ids if single else list(self.scene.segments):
             try:
-                done = complete_points([p for _, p in usable], self.completer, [sid for sid, _ in usable])
-                t0 = time.perf_counter()
-                for c in done:
-                    self._draw_completion(c)
-                self.server.flush()
-                send = time.perf_counter() - t0
-            except Exception as e:  # keep the app alive whatever the model or mesher does
-                log.exception("completing %s failed", what)
-                self._notify(client, "Completion failed", f"{what}: {e}", "red")
-                self.panel.status.content = "Ready. Click a segment to complete it."
-                return []
-            self.completions.update({c.segment_id: c for c in done})
-            title = f"Segment **{done[0].segment_id}**" if single else f"All **{len(done)}** segments (totals)"
-            self._show_timings(title, done, send)
-            self.panel.status.content = f"Completed {what}. Click a segment to complete it."
-            empty = [f"segment {c.segment_id}: {c.error}" for c in done if c.fast_mesh is None]
-            if empty:
-                self._notify(client, "Empty completion", "; ".join(empty), "yellow")
-            return done
+                usable.append((sid, check_segment(self.scene.segments[sid].points_cam)))
+            except SegmentTooSmallError as e:
+                skipped.append(f"segment {sid}: {e}")
+        if skipped:
+            self._notify(client, "Cannot complete" if single else "Some segments were skipped",
+                         "; ".join(skipped), "red" if single else "yellow")
+        if not usable:
+            return []
+        what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
+        self.panel.status.content = f"_Completing {what}..._"
+        try:
+            done = complete_points([p for _, p in usable], self.completer, [sid for sid, _ in usable])
+            t0 = time.perf_counter()
+            for c in done:
+                self._draw_completion(c)
+            self.server.flush()
+            send = time.perf_counter() - t0
+        except Exception as e:  # keep the app alive whatever the model or mesher does
+            log.exception("completing %s failed", what)
+            self._notify(client, "Completion failed", f"{what}: {e}", "red")
+            self.panel.status.content = READY
+            return []
+        self.completions.update({c.segment_id: c for c in done})
+        title = f"Segment **{done[0].segment_id}**" if single else f"All **{len(done)}** segments (totals)"
+        self._show_timings(title, done, send)
+        self.panel.status.content = f"Completed {what}. Click a segment to complete it."
+        empty = [f"segment {c.segment_id}: {c.error}" for c in done if c.fast_mesh is None]
+        if empty:
+            self._notify(client, "Empty completion", "; ".join(empty), "yellow")
+        return done
+
+    def _compute_mesh_in_slot(self, kind: str, c: Completion,
+                              client: viser.ClientHandle | None) -> trimesh.Trimesh | None:
+        """Make, draw and store mesh ``kind`` of completion ``c`` (the caller holds the job slot)."""
+        sid, title = c.segment_id, MESH_TITLES[kind]
+        what = f"the {title.lower()} of segment {sid}"
+        notes = self._show_loading(client, f"Computing {what}...")
+        self.panel.status.content = f"_Computing {what}..._"
+        steps: dict[str, float] = {}
+        try:
+            t0 = time.perf_counter()
+            mesh = self._make_mesh(kind, c, steps)
+            seconds = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            self._draw_mesh(kind, sid, mesh)
+            self.server.flush()
+            send = time.perf_counter() - t0
+        except Exception as e:  # an empty completion, a degenerate cloud, ...: keep the app alive
+            log.warning("computing %s failed: %s", what, e, exc_info=not isinstance(e, ValueError))
+            self._notify(client, f"{title} failed", f"Segment {sid}: {e}", "red")
+            return None
+        finally:
+            for note in notes:
+                note.remove()
+            self.panel.status.content = READY
+        setattr(c, f"{kind}_mesh", mesh)
+        c.timings[f"{kind}_mesh"] = seconds
+        if kind == "detailed":
+            c.timings["detailed_steps"] = steps
+        self.panel.layers[f"{kind}_mesh"].value = True  # the user asked to see it
+        self._show_mesh_timings(kind, c, send)
+        self._notify(client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.",
+                     "green")
+        return mesh
+
+    def _make_mesh(self, kind: str, c: Completion, steps: dict[str, float]) -> trimesh.Trimesh:
+        """Camera-frame mesh ``kind`` of ``c``'s segment; ``steps`` gets Algorithm 1's step times."""
+        points = self.scene.segments[c.segment_id].points_cam
+        if kind == "detailed":
+            return detailed_mesh(c.probabilities, c.frame, points, timings=steps)
+        if kind == "partial":
+            return partial_mesh(points)
+        return mirror_mesh(points, self.scene.segmentation.plane_cam)
 
     # ------------------------------------------------------------------------------------------
     # Loading
@@ -398,19 +494,31 @@ class ViewerApp:
                   plane_opacity=0.35, shadow_opacity=0.0)
 
     def _draw_completion(self, c: Completion) -> None:
-        """Draw one completion's CNN input, CNN output and fast mesh in the world frame."""
-        sid, T = c.segment_id, self.scene.T_world_cam
+        """Draw one completion's CNN input, CNN output and meshes in the world frame.
+
+        A new completion has no detailed or baseline mesh yet, so this also removes those of an
+        earlier completion of the same segment.
+        """
+        sid = c.segment_id
         color = np.asarray(self.scene.segments[sid].color)
-        # The mesh goes first: it is what the user waits for (and what the benchmark times).
-        if c.fast_mesh is None:
-            self._remove(f"/fast_mesh/seg_{sid}")
-        else:
-            self._add(f"/fast_mesh/seg_{sid}", self.server.scene.add_mesh_simple,
-                      transform_points(T, c.fast_mesh.vertices), np.asarray(c.fast_mesh.faces),
-                      color=shade(color, 1.35), cast_shadow=False, receive_shadow=False)
+        # The fast mesh goes first: it is what the user waits for (and what the benchmark times).
+        for kind in P.MESH_KINDS:
+            self._draw_mesh(kind, sid, getattr(c, f"{kind}_mesh"))
         self._draw_voxels(f"/cnn_input/seg_{sid}", surface_voxels(c.grid_in), c, INPUT_VOXEL_FILL,
                           shade(color, 0.55))
         self._draw_output(c)
+
+    def _draw_mesh(self, kind: str, sid: int, mesh: trimesh.Trimesh | None) -> None:
+        """Draw (or, when None, remove) segment ``sid``'s camera-frame mesh ``kind`` in the world frame."""
+        name = f"/{kind}_mesh/seg_{sid}"
+        if mesh is None:
+            self._remove(name)
+            return
+        color = np.asarray(self.scene.segments[sid].color)
+        colors = {"fast": shade(color, 1.35), "detailed": shade(color, 0.7), "partial": PARTIAL_COLOR,
+                  "mirror": MIRROR_COLOR}
+        self._add(name, self.server.scene.add_mesh_simple, transform_points(self.scene.T_world_cam, mesh.vertices),
+                  np.asarray(mesh.faces), color=colors[kind], cast_shadow=False, receive_shadow=False)
 
     def _draw_output(self, c: Completion) -> None:
         idx = surface_voxels(c.grid_out)
@@ -480,6 +588,19 @@ class ViewerApp:
                 ("**click → mesh**", self.last_timings["click_to_mesh"])]
         self.panel.timings.content = P.timings_markdown(title, rows)
 
+    def _show_mesh_timings(self, kind: str, c: Completion, send: float) -> None:
+        """The timings table of a detailed (split by Algorithm 1's steps) or baseline mesh."""
+        seconds = c.timings[f"{kind}_mesh"]
+        title = f"Segment **{c.segment_id}**: {MESH_TITLES[kind].lower()}"
+        if kind == "detailed":
+            steps = c.timings["detailed_steps"]
+            title += f" (Algorithm 1, up-sampling r = {steps['upsample_ratio']})"
+            rows = [(label, steps[key]) for key, label in ALGORITHM_1_STEPS]
+        else:
+            rows = [(MESH_TITLES[kind], seconds)]
+        rows += [("send to browser", send), ("**total**", seconds + send)]
+        self.panel.timings.content = P.timings_markdown(title, rows)
+
     def _wire_callbacks(self) -> None:
         p = self.panel
 
@@ -510,6 +631,8 @@ class ViewerApp:
                 self.complete(self.selected, event.client)
 
         p.complete_all.on_click(lambda event: self.complete_all(event.client))
+        for button, kind in ((p.detailed, "detailed"), (p.partial, "partial"), (p.mirror, "mirror")):
+            button.on_click(lambda event, kind=kind: self.compute_mesh(kind, None, event.client))
         p.new_scene.on_click(lambda event: self.load_default(int(p.seed.value), event.client))
         p.load_cloud.on_click(lambda event: self.load_cloud(p.cloud_path.value, event.client))
 
@@ -534,9 +657,10 @@ class ViewerApp:
 
     def _download(self, client: viser.ClientHandle | None, kind: str) -> None:
         try:
-            name, data = self.export_bytes(kind, None, self.panel.mesh_format.value, self.panel.export_frame.value)
+            name, data = self.export_bytes(kind, None, self.panel.mesh_format.value, self.panel.export_frame.value,
+                                           self.panel.export_mesh_kind.value)
         except ValueError as e:
-            self._notify(client, "Nothing to export", str(e), "yellow")
+            self._notify(client, "Nothing to export", str(e), "red")
             return
         if client is not None:
             client.send_file_download(name, data, save_immediately=True)

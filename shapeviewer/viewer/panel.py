@@ -13,6 +13,8 @@ import viser
 from ..export import MESH_FORMATS
 
 NO_SEGMENT = "(none)"
+# The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
+MESH_KINDS = ("fast", "detailed", "partial", "mirror")
 
 
 @dataclass(frozen=True)
@@ -32,8 +34,11 @@ LAYERS: tuple[Layer, ...] = (
     Layer("cnn_input", "CNN input", True, "Occupied voxels of the 40^3 input grid of each completed segment (step 3)."),
     Layer("cnn_output", "CNN output", False, "Voxels the CNN marks occupied (p > 0.5) (step 4)."),
     Layer("fast_mesh", "Fast mesh", True, "Marching cubes of the CNN output, in metres (step 5a)."),
-    Layer("detailed_mesh", "Detailed mesh", False, "Not yet available: Algorithm 1's detailed mesh (step 5b).",
-          available=False),
+    Layer("detailed_mesh", "Detailed mesh", False,
+          "Algorithm 1: observed points merged with the CNN output, smoothed, meshed (step 5b)."),
+    Layer("partial_mesh", "Partial baseline", False, "Baseline: marching cubes of the observed points alone."),
+    Layer("mirror_mesh", "Mirror baseline", False,
+          "Baseline: the view mirrored about its best symmetry plane (Bohg et al. 2011)."),
     Layer("grasps", "Grasps", False, "Not yet available: grasps planned on the completed mesh (step 6).",
           available=False),
 )
@@ -54,12 +59,16 @@ class Panel:
     segment: viser.GuiDropdownHandle
     complete: viser.GuiButtonHandle
     complete_all: viser.GuiButtonHandle
+    detailed: viser.GuiButtonHandle
+    partial: viser.GuiButtonHandle
+    mirror: viser.GuiButtonHandle
     timings: viser.GuiMarkdownHandle
     layers: dict[str, viser.GuiCheckboxHandle]
     cloud_colors: viser.GuiDropdownHandle
     shade_output: viser.GuiCheckboxHandle
     export_frame: viser.GuiDropdownHandle
     mesh_format: viser.GuiDropdownHandle
+    export_mesh_kind: viser.GuiDropdownHandle
     export_points: viser.GuiButtonHandle
     export_grids: viser.GuiButtonHandle
     export_mesh: viser.GuiButtonHandle
@@ -67,7 +76,8 @@ class Panel:
     @property
     def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
         """Buttons that start a job; disabled while one runs (double clicks would queue jobs)."""
-        return (self.new_scene, self.load_cloud, self.complete, self.complete_all)
+        return (self.new_scene, self.load_cloud, self.complete, self.complete_all, self.detailed, self.partial,
+                self.mirror)
 
 
 def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
@@ -84,6 +94,13 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
         complete = gui.add_button("Complete segment", icon=viser.Icon.CUBE, hint="Fast-complete the selected segment")
         complete_all = gui.add_button("Complete all", icon=viser.Icon.BOX_MULTIPLE,
                                       hint="Fast-complete every segment in one batched CNN pass")
+        detailed = gui.add_button("Detailed mesh", icon=viser.Icon.SPARKLES,
+                                  hint="Algorithm 1's detailed mesh of the selected segment (a few seconds)")
+        with gui.add_folder("Baselines"):
+            partial = gui.add_button("Partial", icon=viser.Icon.CUBE_OFF,
+                                     hint="Baseline: mesh of the selected segment's observed points alone")
+            mirror = gui.add_button("Mirror", icon=viser.Icon.FLIP_VERTICAL,
+                                    hint="Baseline: the selected segment completed by symmetry (needs a table)")
         timings = gui.add_markdown("_No completion yet._")
     with gui.add_folder("Layers"):
         layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint, disabled=not layer.available)
@@ -100,14 +117,14 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
     with gui.add_folder("Export", expand_by_default=False):
         export_frame = gui.add_dropdown("Frame", ("world", "camera"), hint="Coordinates of exported points and meshes")
         mesh_format = gui.add_dropdown("Mesh format", MESH_FORMATS)
+        export_mesh_kind = gui.add_dropdown("Mesh", MESH_KINDS, hint="Which of the segment's meshes to export")
         export_points = gui.add_button("Segment points (PLY)", icon=viser.Icon.DOWNLOAD)
         export_grids = gui.add_button("CNN grids (NPZ)", icon=viser.Icon.DOWNLOAD,
                                       hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
-        export_mesh = gui.add_button("Fast mesh", icon=viser.Icon.DOWNLOAD)
+        export_mesh = gui.add_button("Mesh", icon=viser.Icon.DOWNLOAD, hint="The mesh chosen above")
     return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, model_folder, segment, complete,
-                 complete_all,
-                 timings, layers, cloud_colors, shade_output, export_frame, mesh_format, export_points,
-                 export_grids, export_mesh)
+                 complete_all, detailed, partial, mirror, timings, layers, cloud_colors, shade_output, export_frame,
+                 mesh_format, export_mesh_kind, export_points, export_grids, export_mesh)
 
 
 def source_markdown(source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float,
