@@ -89,13 +89,13 @@ def mean_nn_distance(points: np.ndarray, step: int = DENSITY_SAMPLE_STEP) -> flo
     return float(np.mean(d[:, 1]))
 
 
-def upsample_ratio(observed_points: np.ndarray, cnn_points: np.ndarray) -> int:
+def upsample_ratio(observed_spacing: float, cnn_spacing: float) -> int:
     """Algorithm 1, line 1: r = ceil(3/8 * observed density / CNN density), at least 1.
 
-    Density is 1 / mean nearest-neighbour distance; the CNN's points are its occupied voxel centres.
+    Density is 1 / mean nearest-neighbour distance (:func:`mean_nn_distance`); the CNN's points
+    are its occupied voxel centres. Both spacings in the same unit.
     """
-    ratio = mean_nn_distance(cnn_points) / mean_nn_distance(observed_points)
-    return max(1, int(np.ceil(UPSAMPLE_RATIO_SCALE * ratio)))
+    return max(1, int(np.ceil(UPSAMPLE_RATIO_SCALE * cnn_spacing / observed_spacing)))
 
 
 def upsample_occupancy(occupied: np.ndarray, r: int) -> np.ndarray:
@@ -236,7 +236,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
         raise EmptyCompletionError("no voxel is above 0.5: the completion is empty")
     cnn_pts = frame.voxel_centers(np.argwhere(occ))
     obs_nn = mean_nn_distance(obs)
-    r = max(1, int(np.ceil(UPSAMPLE_RATIO_SCALE * mean_nn_distance(cnn_pts) / obs_nn))) if len(cnn_pts) > 1 else 1
+    r = upsample_ratio(obs_nn, mean_nn_distance(cnn_pts)) if len(cnn_pts) > 1 else 1
     t["density"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
