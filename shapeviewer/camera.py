@@ -128,7 +128,9 @@ class RaycastRenderer:
 
 
 def _projected_box(bounds: list, intr: Intrinsics, T_world_cam: np.ndarray):
-    corners = np.concatenate([np.array(np.meshgrid(*b.T)).reshape(3, -1).T for b in bounds])
+    import trimesh
+
+    corners = np.concatenate([trimesh.bounds.corners(b) for b in bounds])
     pc = transform_points(np.linalg.inv(T_world_cam), corners)
     if np.any(pc[:, 2] <= 1e-6):  # a box reaches behind the camera: cast everything
         return 0, intr.height, 0, intr.width

@@ -153,7 +153,7 @@ def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray |
 
     T = np.eye(4) if T_cam_mesh is None else np.asarray(T_cam_mesh, dtype=np.float64)
     grid = np.zeros((frame.dim,) * 3, dtype=bool)
-    corners = np.array(np.meshgrid(*np.asarray(mesh.bounds).T)).reshape(3, -1).T
+    corners = trimesh.bounds.corners(mesh.bounds)
     g = frame.to_grid(corners @ T[:3, :3].T + T[:3, 3])
     # Only voxels inside the mesh's bounding box can be inside it.
     lo = np.clip(np.floor(g.min(axis=0)).astype(int), 0, frame.dim)
