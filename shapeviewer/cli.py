@@ -7,6 +7,7 @@
     shapeviewer generate --out DIR [--views N] [--backend process|ray]
     shapeviewer train --data DIR --run DIR [--steps N]
     shapeviewer evaluate-grids --data DIR [--weights PATH]
+    shapeviewer evaluate --out DIR [--views-per-set 50] [--seed 0] [--weights PATH] [--workers N]
 """
 
 from __future__ import annotations
@@ -195,6 +196,16 @@ def cmd_evaluate_grids(args) -> int:
     return 0
 
 
+def cmd_evaluate(args) -> int:
+    from .evaluate import evaluate
+
+    r = evaluate(args.out, n_per_set=args.views_per_set, seed=args.seed, weights=args.weights,
+                 workers=args.workers, progress=not args.no_progress)
+    print(r["tables_md"])
+    print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="shapeviewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true")
@@ -264,6 +275,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", default=None, help="also write the figures to this file")
     s.add_argument("--card", default=None, help="write a model card (markdown) with these figures")
     s.set_defaults(func=cmd_evaluate_grids)
+
+    s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")
+    s.add_argument("--out", required=True, help="results folder (resumable: finished views are skipped)")
+    s.add_argument("--views-per-set", type=int, default=50, help="views per evaluation set (the paper: 50)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
+    s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    s.set_defaults(func=cmd_evaluate)
     return p
 
 
