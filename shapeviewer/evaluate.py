@@ -61,7 +61,6 @@ TABLES = (("I", "jaccard", "Jaccard similarity (higher is better)"),
           ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
           ("III", "geodesic", "Geodesic divergence (lower is better)"))
 SET_TITLES = {"training_view": "Training Views", "holdout_view": "Holdout Views", "holdout_model": "Holdout Models"}
-NOISE_SEED_TAG = 7  # generate.generate_object seeds the sensor noise with [seed, view, 7]
 
 
 def _view_count() -> int:
@@ -105,13 +104,11 @@ def _stem(name: str, view: int) -> str:
 def render_eval_view(name: str, view: int, seed: int = 0):
     """``(points_cam, truth_mesh_cam)`` of one view, rendered as the training data is."""
     from .camera import Intrinsics, KinectNoise, RaycastRenderer
-    from .generate import render_view, view_pose
+    from .generate import noise_seed, object_mesh, render_view, view_pose
 
-    mesh = dataset.load_mesh(name)
-    mesh.apply_translation(-mesh.bounding_box.centroid)
+    mesh = object_mesh(name)
     T = view_pose(name, view, seed)
-    _, points = render_view(RaycastRenderer([mesh]), T, Intrinsics.kinect(), KinectNoise(),
-                            [seed, int(view), NOISE_SEED_TAG])
+    _, points = render_view(RaycastRenderer([mesh]), T, Intrinsics.kinect(), KinectNoise(), noise_seed(seed, view))
     truth = mesh.copy()
     truth.apply_transform(T)
     return points, truth

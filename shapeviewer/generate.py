@@ -74,6 +74,18 @@ def view_pose(name: str, view: int, seed: int) -> np.ndarray:
     return T
 
 
+def object_mesh(name: str):
+    """A catalogue mesh centred on its bounding-box centre: the object frame that views are posed in."""
+    mesh = dataset.load_mesh(name)
+    mesh.apply_translation(-mesh.bounding_box.centroid)
+    return mesh
+
+
+def noise_seed(seed: int, view: int) -> list[int]:
+    """The sensor-noise seed of one view (shared by training data and evaluation renders)."""
+    return [seed, int(view), 7]
+
+
 def render_view(renderer: RaycastRenderer, T_cam_obj: np.ndarray, intr: Intrinsics,
                 noise: KinectNoise | None, seed) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) metres of an object at ``T_cam_obj``: ``(ideal, measured)``.
@@ -96,8 +108,7 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
         with np.load(shard) as z:
             return {"name": name, "kept": int(len(z["views"])), "skipped": True}
     t0 = time.perf_counter()
-    mesh = dataset.load_mesh(name)
-    mesh.apply_translation(-mesh.bounding_box.centroid)
+    mesh = object_mesh(name)
     renderer = RaycastRenderer([mesh])
     intr = Intrinsics.kinect()
     noise = KinectNoise() if config.noise else None
@@ -106,7 +117,7 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
     rejected = {"few_voxels": 0, "outside": 0}
     for view in view_indices(name, config):
         T = view_pose(name, int(view), config.seed)
-        ideal, measured = render_view(renderer, T, intr, noise, [config.seed, int(view), 7])
+        ideal, measured = render_view(renderer, T, intr, noise, noise_seed(config.seed, view))
         if len(measured) < 10 or len(ideal) < 10:
             rejected["few_voxels"] += 1
             continue
