@@ -40,6 +40,7 @@ from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete
 from ..reconstruct import detailed_mesh
 from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
+from .grasps import GraspController, GraspJob
 from .rays import pick_segment
 from .visuals import default_view, depth_colors, probability_colors, shade, surface_voxels, voxel_cubes
 
@@ -135,6 +136,8 @@ class ViewerApp:
         self._layer_roots = {layer.key: self.server.scene.add_frame(f"/{layer.key}", show_axes=False,
                                                                     visible=layer.visible)
                              for layer in P.LAYERS}
+        # The Grasps folder goes right after Completion (viser orders folders by a global counter).
+        self.grasps = GraspController(self, order=self.panel.timings.order + 0.5)
         self._wire_callbacks()
         if announce is not None:
             announce(self.url)
@@ -170,6 +173,7 @@ class ViewerApp:
         return f"http://{host}:{self.port}"
 
     def stop(self) -> None:
+        self.grasps.shutdown()
         self.server.stop()
 
     def load_default(self, seed: int, client: viser.ClientHandle | None = None) -> bool:
@@ -237,6 +241,30 @@ class ViewerApp:
                 c = done[0]
             self._select(sid)
             return self._compute_mesh_in_slot(kind, c, client)
+
+    def plan_grasps(self, segment_id: int | None = None, hand: str = "barrett", method: str = "fast",
+                    n_grasps: int = 20, client: viser.ClientHandle | None = None, wait: bool = True, seed: int = 0,
+                    budget_seconds: float | None = None) -> GraspJob | None:
+        """Plan grasps on a segment's (default: the selected one's) ``method`` mesh in the background,
+        outside the job lock; see :meth:`GraspController.plan`. ``job.result``: the
+        :class:`~shapeviewer.viewer.grasps.SegmentGrasps` (None when cancelled)."""
+        return self.grasps.plan(self.selected if segment_id is None else segment_id, hand, method, n_grasps,
+                                client, wait, seed, budget_seconds)
+
+    def cancel_grasps(self) -> bool:
+        """Stop the running grasp job (False when none runs)."""
+        return self.grasps.cancel()
+
+    def execute_grasps(self, segment_id: int | None = None, indices: list[int] | None = None,
+                       client: viser.ClientHandle | None = None, wait: bool = True, lift: bool = True) -> GraspJob | None:
+        """Execute a segment's grasps ``indices`` (None: all) on its true object (synthetic scenes);
+        ``job.result``: the :class:`~shapeviewer.grasp.execute.ExecutionResult` list."""
+        return self.grasps.execute(self.grasps.current if segment_id is None else segment_id, indices, client,
+                                   wait, lift)
+
+    def export_grasps(self, segment_id: int | None = None, fmt: str = "json") -> tuple[str, bytes]:
+        """``(file name, content)`` of a segment's grasps: ``json`` or the pybullet scene ``zip``."""
+        return self.grasps.export(self.grasps.current if segment_id is None else segment_id, fmt)
 
     def export_bytes(self, kind: str, segment_id: int | None = None, mesh_format: str = "ply",
                      frame: str = "world", mesh: str = "fast") -> tuple[str, bytes]:
@@ -419,6 +447,7 @@ class ViewerApp:
         scene = LoadedScene(capture, seg, T, seg_seconds, segments, points_world)
 
         self._clear_nodes()
+        self.grasps.clear()
         self.scene, self.completions, self.selected, self.last_timings = scene, {}, None, {}
         self._draw_cloud()
         self._draw_segments()

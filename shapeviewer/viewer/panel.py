@@ -39,8 +39,7 @@ LAYERS: tuple[Layer, ...] = (
     Layer("partial_mesh", "Partial baseline", False, "Baseline: marching cubes of the observed points alone."),
     Layer("mirror_mesh", "Mirror baseline", False,
           "Baseline: the view mirrored about its best symmetry plane (Bohg et al. 2011)."),
-    Layer("grasps", "Grasps", False, "Not yet available: grasps planned on the completed mesh (step 6).",
-          available=False),
+    Layer("grasps", "Grasps", True, "Hands at the grasps planned on a segment's mesh, coloured by epsilon (step 6)."),
 )
 
 

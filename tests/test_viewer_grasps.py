@@ -1,0 +1,245 @@
+"""Grasps in the viewer without a browser: planning in the background, drawing, selection, cancel,
+execution on the ground truth, export, real captures, failures."""
+
+from __future__ import annotations
+
+import io
+import socket
+import time
+import zipfile
+
+import numpy as np
+import pytest
+
+from shapeviewer.camera import transform_points
+from shapeviewer.grasp.export import grasps_from_json
+from shapeviewer.viewer import ViewerApp
+from shapeviewer.viewer import grasps as G
+
+N_GRASPS = 4
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def node(app: ViewerApp, name: str):
+    return app.server.scene.get_handle_by_name(name)
+
+
+@pytest.fixture(scope="module")
+def app():
+    app = ViewerApp(port=free_port(), seed=0)
+    yield app
+    app.stop()
+
+
+def largest_segments(app: ViewerApp) -> list[int]:
+    return sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s]))
+
+
+@pytest.fixture(scope="module")
+def planned(app) -> G.SegmentGrasps:
+    """Barrett grasps on the fast mesh of the largest segment (completed by planning itself)."""
+    sid = largest_segments(app)[0]
+    assert sid not in app.completions
+    job = app.plan_grasps(sid, "barrett", "fast", N_GRASPS, seed=0)
+    assert job is not None and job.done.is_set() and job.error is None, job and job.error
+    s = job.result
+    assert s is not None and s.grasps, "planning found no grasp on the largest object of the default scene"
+    return s
+
+
+def test_epsilon_colours_run_from_red_to_green_and_grey_without_closure():
+    colours = G.epsilon_colors([0.05, 0.001, 0.0, -0.1])
+    (r0, g0, _), (r1, g1, _) = colours[0], colours[1]
+    assert g0 > r0 and r1 > g1  # best green, near-zero red
+    assert colours[2] == colours[3] == G.NO_CLOSURE_COLOR
+
+
+def test_segments_of_the_default_scene_map_to_their_true_objects(app):
+    capture = app.scene.capture
+    seen = set()
+    for sid, seg in app.scene.segments.items():
+        match = G.ground_truth_object(capture, seg)
+        assert match is not None, sid
+        index, share = match
+        assert share > 0.9
+        # The true object is where the segment's points are (world frame).
+        truth = G.object_mesh_world(capture.objects[index])
+        centroid = app.segment_centroid_world(sid)
+        assert np.all(centroid > truth.bounds[0] - 0.01) and np.all(centroid < truth.bounds[1] + 0.01), sid
+        seen.add(index)
+    assert len(seen) == len(app.scene.segments)  # one object per segment
+
+
+def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
+    sid = planned.segment_id
+    c = app.completions[sid]
+    # The planner got the fast mesh in the world frame, standing on the table.
+    assert planned.method == "fast" and planned.table
+    assert np.allclose(planned.mesh_world.vertices, transform_points(app.scene.T_world_cam, c.fast_mesh.vertices))
+    assert planned.mesh_world.bounds[0, 2] > -0.02
+    assert len(planned.grasps) <= N_GRASPS
+    assert node(app, f"/grasps/seg_{sid}") is not None
+    for k, g in enumerate(planned.grasps):
+        frame = node(app, f"/grasps/seg_{sid}/g{k}")
+        assert frame is not None, k
+        assert np.allclose(frame.position, g.T_world_palm[:3, 3])
+        for link in ("palm", "f1_proximal", "f2_distal", "f3_distal"):
+            assert node(app, f"/grasps/seg_{sid}/g{k}/{link}") is not None, (k, link)
+        # The palm is at the object, not somewhere else in the scene.
+        gap = np.min(np.linalg.norm(planned.mesh_world.vertices - g.position, axis=1))
+        assert gap < 0.1, (k, gap)
+    # Coloured by quality: the best grasp's fingers are the colour epsilon_colors gives it.
+    first = node(app, f"/grasps/seg_{sid}/g0/f1_proximal")
+    assert tuple(first.color) == G.epsilon_colors([g.epsilon for g in planned.grasps])[0]
+    # Listed, the best one selected and described, the layer on.
+    panel = app.grasps.panel
+    assert len(panel.grasp.options) == len(planned.grasps)
+    assert app.grasps.current == sid and app.grasps.selected == 0
+    assert panel.grasp.value == panel.grasp.options[0]
+    assert f"ε **{planned.grasps[0].epsilon:.4f}**" in panel.info.content
+    assert "f1_proximal" in panel.info.content and "°" in panel.info.content
+    assert app.panel.layers["grasps"].value and node(app, "/grasps").visible
+    assert not panel.plan.disabled and panel.cancel.disabled and not panel.progress.visible
+
+
+def test_selection_highlights_one_grasp(app, planned):
+    sid = planned.segment_id
+    if len(planned.grasps) < 2:
+        pytest.skip("needs two grasps")
+    app.grasps.select(1)
+    assert node(app, f"/grasps/seg_{sid}/g1/palm").opacity is None
+    assert node(app, f"/grasps/seg_{sid}/g0/palm").opacity == G.DIM_OPACITY
+    assert "**Grasp #2**" in app.grasps.panel.info.content
+    app.grasps.panel.show_all.value = False
+    try:
+        assert node(app, f"/grasps/seg_{sid}/g0").visible is False
+        assert node(app, f"/grasps/seg_{sid}/g1").visible is True
+    finally:
+        app.grasps.panel.show_all.value = True
+        app.grasps.select(0)
+    assert node(app, f"/grasps/seg_{sid}/g1").visible is True
+
+
+def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, planned):
+    sid = largest_segments(app)[1]
+    job = app.plan_grasps(sid, "barrett", "fast", N_GRASPS, wait=False)
+    assert job is not None
+    try:
+        # Wait until the planner itself runs (its progress bar moves), not just the mesh stage.
+        deadline = time.monotonic() + 60
+        while app.grasps.panel.progress.value < 5 and not job.done.is_set() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not job.done.is_set(), "planning finished before it could be cancelled"
+        # Meanwhile: one grasp job at a time, but the app's own jobs are not blocked.
+        assert app.plan_grasps(sid, "panda", "fast", 1, wait=False) is None
+        assert app.complete(largest_segments(app)[2]) is not None
+        assert app.cancel_grasps()
+        t0 = time.monotonic()
+        assert job.wait(10), "planning did not stop within 10 s of Cancel"
+        assert time.monotonic() - t0 < 5
+    finally:
+        job.cancel()
+        job.wait(60)
+    assert job.cancelled and job.result is None and job.error is None
+    assert sid not in app.grasps.sets and node(app, f"/grasps/seg_{sid}") is None
+    assert not app.grasps.panel.plan.disabled and app.grasps.panel.cancel.disabled
+    assert not app.cancel_grasps()  # nothing runs any more
+    assert app.grasps.current == planned.segment_id  # the earlier grasps are still listed
+
+
+def test_execute_on_ground_truth(app, planned):
+    sid = planned.segment_id
+    job = app.execute_grasps(sid, [0])
+    assert job is not None and job.error is None
+    (e,) = job.result
+    assert np.isfinite(e.joint_error) and e.joint_error >= 0
+    assert np.isfinite(e.pose_error) and e.pose_error >= 0
+    assert e.lift is not None and np.isfinite(e.lift.rise)
+    assert planned.executions[0] is e
+    index, _ = G.ground_truth_object(app.scene.capture, app.scene.segments[sid])
+    assert planned.truth_name == app.scene.capture.objects[index].name
+    # The true object (translucent) and the executed hand (only the selected grasp's) are drawn.
+    truth = node(app, f"/grasps/seg_{sid}/truth")
+    assert truth is not None and truth.opacity == G.TRUTH_OPACITY
+    assert node(app, f"/grasps/seg_{sid}/exec_g0").visible is True
+    assert node(app, f"/grasps/seg_{sid}/exec_g0/f1_proximal").color == G.EXECUTED_COLOR
+    info = app.grasps.panel.info.content
+    assert f"joint error **{e.joint_error:.2f}°**" in info and f"pose error **{e.pose_error:.1f} mm**" in info
+    assert ("lifted" in info) or ("dropped" in info)
+    # Execute all (kinematic only, quick): every grasp gets an execution, the first is replaced.
+    job = app.execute_grasps(sid, None, lift=False)
+    assert job is not None and len(job.result) == len(planned.grasps)
+    assert all(x is not None for x in planned.executions)
+    if len(planned.grasps) > 1:
+        assert node(app, f"/grasps/seg_{sid}/exec_g1").visible is False  # not selected
+
+
+def test_json_export_round_trips_with_executions(app, planned):
+    sid = planned.segment_id
+    name, data = app.export_grasps(sid, "json")
+    assert name.endswith("_grasps.json") and f"seg{sid}" in name
+    back = grasps_from_json(data)
+    assert len(back.grasps) == len(planned.grasps)
+    for g, b in zip(planned.grasps, back.grasps):
+        assert np.array_equal(g.T_world_palm, b.T_world_palm) and g.epsilon == b.epsilon and g.joints == b.joints
+    for e, b in zip(planned.executions, back.executions):
+        assert (e is None) == (b is None)
+        if e is not None:
+            assert b.joint_error == e.joint_error and b.pose_error == e.pose_error
+    assert back.meta["segment"] == sid and back.meta["ground_truth"] == planned.truth_name
+    assert np.allclose(back.meta["T_world_cam"], app.scene.T_world_cam)
+    name, data = app.export_grasps(sid, "zip")
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        assert {"object.urdf", "object.obj", "grasps.json"} <= set(z.namelist())
+    with pytest.raises(ValueError, match="plan grasps"):
+        app.export_grasps(10_000)
+
+
+def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(app, planned, monkeypatch):
+    class Gone:
+        """A browser that disconnected: every message to it fails."""
+
+        client_id = 12345
+
+        def add_notification(self, *args, **kwargs):
+            raise RuntimeError("connection closed")
+
+    gone = Gone()
+    monkeypatch.setattr(app.server, "get_clients", lambda: {gone.client_id: gone})
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("pybullet exploded")
+
+    monkeypatch.setattr(G, "execute_grasps", broken)
+    app.last_error = None
+    job = app.execute_grasps(planned.segment_id, [0], client=gone, lift=False)
+    assert job is not None and "pybullet exploded" in job.error
+    assert "failed" in app.last_error and "pybullet exploded" in app.last_error
+    # The app carries on: the lock is free and the buttons are back.
+    assert not app.grasps.panel.execute.disabled and app.grasps._busy.acquire(blocking=False)
+    app.grasps._busy.release()
+
+
+def test_real_capture_has_no_ground_truth(real_data):
+    app = ViewerApp(port=free_port(), cloud=real_data / "milk_cartoon_all_small_clorox.pcd")
+    try:
+        sid = largest_segments(app)[0]
+        job = app.plan_grasps(sid, "barrett", "fast", 3, budget_seconds=4.0)
+        assert job is not None and job.error is None and job.result is not None
+        s = job.result
+        # Planned in the table-aligned world frame, with the table.
+        assert s.table and s.mesh_world.bounds[0, 2] > -0.03
+        for k in range(len(s.grasps)):
+            assert node(app, f"/grasps/seg_{sid}/g{k}") is not None
+        assert "No ground truth" in app.grasps.panel.info.content
+        app.last_error = None
+        assert app.execute_grasps(sid, [0] if s.grasps else None) is None
+        assert "No ground truth" in app.last_error and "real capture" in app.last_error
+        assert node(app, f"/grasps/seg_{sid}/truth") is None
+    finally:
+        app.stop()
