@@ -1,6 +1,6 @@
 """The ``shapeviewer`` command: the viewer's jobs, headless.
 
-    shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH]
+    shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR]
     shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
     shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
     shapeviewer objects
@@ -8,6 +8,7 @@
     shapeviewer train --data DIR --run DIR [--steps N]
     shapeviewer evaluate-grids --data DIR [--weights PATH]
     shapeviewer evaluate --out DIR [--views-per-set 50] [--seed 0] [--weights PATH] [--workers N]
+                         [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def cmd_serve(args) -> int:
 
     try:
         serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
-              intrinsics=_intrinsics(args))
+              intrinsics=_intrinsics(args), results=args.results)
     except OSError as e:  # e.g. a bad --cloud path: say so instead of a traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -197,10 +198,14 @@ def cmd_evaluate_grids(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluate import evaluate
+    from .evaluate import GRASP_METHODS, GraspOptions, evaluate
 
+    grasps = None
+    if args.grasps:
+        grasps = GraspOptions(methods=tuple(args.grasp_methods or GRASP_METHODS), hand=args.hand,
+                              n_grasps=args.n_grasps, budget_seconds=args.grasp_budget)
     r = evaluate(args.out, n_per_set=args.views_per_set, seed=args.seed, weights=args.weights,
-                 workers=args.workers, progress=not args.no_progress)
+                 workers=args.workers, progress=not args.no_progress, grasps=grasps)
     print(r["tables_md"])
     print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
     return 0
@@ -215,6 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1", help="interface to listen on (0.0.0.0 for all)")
     s.add_argument("--port", type=int, default=8080, help="port (the next free one is used if busy)")
     s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
+    s.add_argument("--results", default=None, metavar="DIR",
+                   help="results folder of `shapeviewer evaluate` for the Dataset tab (default: a small sample "
+                        "store, built in the user cache on first run)")
     _add_input_args(s)
     s.set_defaults(func=cmd_serve)
 
@@ -283,6 +291,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    s.add_argument("--grasps", action="store_true",
+                   help="also Tables IV/V: plan grasps on each completion, execute them on the true mesh "
+                        "(saved completions are reused)")
+    s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
+    s.add_argument("--n-grasps", type=int, default=20, help="grasps planned per view and method (the paper: 20)")
+    s.add_argument("--grasp-budget", type=float, default=None,
+                   help="planning time limit per view and method, seconds (default: the full, deterministic search)")
+    s.add_argument("--grasp-methods", nargs="+", default=None, metavar="METHOD",
+                   help="completions to grasp, of Partial Mirror Ours-fast Ours-detailed (default: all four)")
     s.set_defaults(func=cmd_evaluate)
     return p
 

@@ -1,8 +1,11 @@
-"""The paper's completion tables: `shapeviewer.evaluate` end to end on one view per set."""
+"""The paper's completion and grasp tables: `shapeviewer.evaluate` end to end on one view per set."""
 
 import csv
+import json
 import math
+import shutil
 
+import numpy as np
 import pytest
 
 from shapeviewer import evaluate as ev
@@ -58,7 +61,7 @@ def test_tables_have_paper_numbers(run):
         assert t in md
     for paper in ("0.777", "0.749", "0.650", "11.4", "5.9", "0.087", "0.141", "0.494"):
         assert paper in md
-    rows = list(csv.DictReader(open(out / "tables.csv")))
+    rows = [r for r in csv.DictReader(open(out / "tables.csv")) if r["table"] == "I-III"]
     assert len(rows) == 12 and {"paper_jaccard", "jaccard", "seconds"} <= set(rows[0])
 
 
@@ -82,3 +85,134 @@ def test_cli_evaluate(run, capsys):
     out, _ = run
     assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--workers", "1", "--no-progress"]) == 0
     assert "Table III" in capsys.readouterr().out
+
+
+def test_view_files_are_records(run):
+    out, _ = run
+    for n, v, s in ev.sample_views(1, 0):
+        rec = json.loads(ev._view_file(out, n, v).read_text())
+        assert {"object", "view", "view_set", "seed", "files", "rows", "grasps"} <= set(rec)
+        assert (rec["object"], rec["view"], rec["view_set"], rec["seed"], rec["grasps"]) == (n, v, s, 0, [])
+        assert {"truth", "points"} <= set(rec["files"]) and all((out / f).exists() for f in rec["files"].values())
+        assert [r["method"] for r in rec["rows"]] == list(ev.METHODS)
+
+
+def test_old_format_views_load_and_upgrade(run, tmp_path):
+    out, _ = run
+    n, v, s = ev.sample_views(1, 0)[0]
+    stem = ev._stem(n, v)
+    (tmp_path / "meshes").mkdir()
+    for f in (out / "meshes").glob(f"{stem}__*.ply"):
+        shutil.copy(f, tmp_path / "meshes" / f.name)
+    rows = json.loads(ev._view_file(out, n, v).read_text())["rows"]
+    (tmp_path / "views").mkdir()
+    ev._view_file(tmp_path, n, v).write_text(json.dumps(rows))  # the first format: a bare list of rows
+    rec = ev.load_view(tmp_path, n, v, seed=0)
+    assert rec["rows"] == rows and rec["view_set"] == s and rec["grasps"] == [] and rec["seed"] == 0
+    assert rec["files"]["truth"] == f"meshes/{stem}__truth.ply" and "Ours-detailed" in rec["files"]
+    ev._upgrade_old_views(tmp_path, [(n, v, s)], seed=0)
+    assert json.loads(ev._view_file(tmp_path, n, v).read_text()) == rec
+
+
+def test_world_frame_is_level_camera():
+    R = ev.T_WORLD_CAM[:3, :3]
+    assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(R @ [0, 1, 0], [0, 0, -1])  # image down is gravity
+    assert np.allclose(R @ [0, 0, 1], [1, 0, 0])  # the optical axis is horizontal
+
+
+def test_grasp_means_and_pending():
+    rows = [{"epsilon_planned": 0.1, "epsilon_executed": -0.2, "joint_error_deg": 2.0, "pose_error_mm": 4.0,
+             "volume_planned": 1.0, "volume_executed": 0.5, "start_clear": 1.0, "lift_success": 0.0},
+            {"epsilon_planned": 0.05, "epsilon_executed": 0.01, "joint_error_deg": 4.0, "pose_error_mm": 0.0,
+             "volume_planned": 1.0, "volume_executed": 0.5, "start_clear": 0.0, "lift_success": 1.0}]
+    m = ev.grasp_means(rows)
+    assert m["joint_error_deg"] == 3.0 and m["pose_error_mm"] == 2.0 and m["lift_success"] == 0.5
+    assert m["force_closure_planned"] == 1.0 and m["force_closure_executed"] == 0.5
+    assert m["lift_success_best"] == 0.0  # rank 0, the grasp a robot would execute, dropped the object
+    empty = ev.grasp_means([])
+    assert math.isnan(empty["joint_error_deg"]) and empty["lift_success_best"] == 0.0
+    opts = ev.GraspOptions(methods=("Partial", "Mirror", "Ours-detailed"))
+    rec = {"grasps": [{"method": "Partial", "hand": "barrett", "error": ""},
+                      {"method": "Mirror", "hand": "barrett", "error": "RuntimeError: crash"},
+                      {"method": "Ours-detailed", "hand": "panda", "error": ""}]}
+    assert ev.pending_grasps(rec, opts) == ["Mirror", "Ours-detailed"]
+    with pytest.raises(ValueError):
+        ev.GraspOptions(methods=("Ours",))
+
+
+GRASP_METHODS = ("Partial", "Ours-detailed")
+
+
+@pytest.fixture(scope="module")
+def grasp_run(run, tmp_path_factory):
+    """The completion run's folder, copied, rerun with grasps: the completions must be reused."""
+    from shapeviewer.grasp.plan import PlanSettings
+
+    out = tmp_path_factory.mktemp("eval_grasps") / "out"
+    shutil.copytree(run[0], out)
+    options = ev.GraspOptions(methods=GRASP_METHODS, n_grasps=2,
+                              settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8))
+
+    def no_completion(*a, **k):
+        raise AssertionError("completions were recomputed")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ev, "evaluate_view", no_completion)
+        r = ev.evaluate(out, n_per_set=1, seed=0, workers=1, progress=False, grasps=options)
+    return out, options, r
+
+
+def test_grasp_stage_records(grasp_run):
+    from shapeviewer.grasp.export import grasps_from_json
+
+    out, options, r = grasp_run
+    assert r["computed"] == 3
+    for n, v, s in ev.sample_views(1, 0):
+        rec = json.loads(ev._view_file(out, n, v).read_text())
+        assert [g["method"] for g in rec["grasps"]] == list(GRASP_METHODS)
+        for g in rec["grasps"]:
+            assert g["error"] == "" and g["hand"] == "barrett" and 1 <= g["n"] <= 2
+            assert g["file"] == f"grasps/{ev._stem(n, v)}__{g['method']}.json"
+            for k in ("joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed"):
+                assert math.isfinite(g[k])
+            assert g["joint_error_deg"] >= 0 and g["pose_error_mm"] >= 0 and g["seconds_plan"] > 0
+            assert 0 <= g["force_closure_planned"] <= 1 and 0 <= g["lift_success"] <= 1
+            gs = grasps_from_json((out / g["file"]).read_text())
+            assert len(gs.grasps) == g["n"] and all(e is not None and e.lift is not None for e in gs.executions)
+            assert gs.meta["T_world_cam"] == ev.T_WORLD_CAM.tolist() and gs.meta["view"] == v
+            # The entry's means are those of the saved grasps.
+            assert g["pose_error_mm"] == pytest.approx(np.mean([e.pose_error for e in gs.executions]))
+    rows = list(csv.DictReader(open(out / "grasp_rows.csv")))
+    assert len(rows) == len(r["grasp_rows"]) == sum(g["n"] for n, v, _ in ev.sample_views(1, 0)
+                                                     for g in ev.load_view(out, n, v)["grasps"])
+    assert set(ev.GRASP_ROW_FIELDS) <= set(rows[0])
+
+
+def test_grasp_tables(grasp_run):
+    out, _, r = grasp_run
+    md = (out / "tables.md").read_text()
+    assert "Table I:" in md and "Table IV: joint error" in md and "Table V analogue" in md
+    for paper in ("6.09", "4.56", "16.0", "13.2", "71.4%", "93.3%"):
+        assert paper in md
+    cells = [x for x in csv.DictReader(open(out / "tables.csv")) if x["table"] == "IV-V"]
+    assert {(x["view_set"], x["method"]) for x in cells} == {(s, m) for s in (*ev.VIEW_SETS, "all") for m in GRASP_METHODS}
+    for x in cells:
+        assert math.isfinite(float(x["joint_error_deg"])) and math.isfinite(float(x["pose_error_mm"]))
+    allp = next(x for x in cells if x["view_set"] == "all" and x["method"] == "Partial")
+    assert int(allp["n"]) == 3 and float(allp["paper_lift_success"]) == 0.714
+
+
+def test_grasp_resume_skips_done(grasp_run, monkeypatch, capsys):
+    out, options, first = grasp_run
+    calls = []
+    monkeypatch.setattr(ev, "evaluate_view", lambda *a, **k: calls.append(a) or [])
+    monkeypatch.setattr(ev, "grasp_view", lambda *a, **k: calls.append(a) or {})
+    again = ev.evaluate(out, n_per_set=1, seed=0, workers=1, progress=False, grasps=options)
+    assert calls == [] and again["computed"] == 0 and again["skipped"] == 3
+    assert again["grasp_rows"] == first["grasp_rows"]
+    # The command line with the same hand and methods finds nothing to do either.
+    assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--workers", "1", "--no-progress",
+                 "--grasps", "--n-grasps", "2", "--grasp-methods", *GRASP_METHODS]) == 0
+    assert calls == [] and "Table IV" in capsys.readouterr().out
+    assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--grasps", "--grasp-methods", "Ours"]) == 2
