@@ -67,15 +67,15 @@ MERGE_LEAF_FACTOR = 2.0       # re-voxelize at 2 x the observed mean nearest-nei
 MERGE_PADDING = 6             # voxels of padding on every side of the merged grid
 BAND = 4                      # Lempitsky smoothing optimises a band of 4 voxels around the boundary
 BAND_VALUE = 5.0              # F is fixed at +/-5 outside the band
-SMOOTH_ITERATIONS = 500
-SMOOTH_DAMPING = 0.5
-# Two additions to the paper's merge step (measured on perfect-CNN inputs: mean Hausdorff to the
-# true mesh 3.8 mm for the fast mesh, 2.9 mm with carving, 2.1 mm with carving and erosion):
-# the CNN's voxels in front of the observed surface are space the camera saw as free, and the
-# ground truth it learned marks every voxel the surface touches, which puts its iso-surface about
-# half a coarse voxel (= one fine voxel) outside the true one.
-CNN_EROSION = 1
-TIE_BREAK = 1e-3
+SMOOTH_ITERATIONS = 100       # FISTA steps (see lempitsky_smooth); the paper ran 500 Jacobi steps
+# Two additions to the paper's merge step. (1) The CNN's voxels in front of the observed surface
+# are space the camera saw as free: they are carved away. (2) A voxel of the merged grid is
+# occupied when a point falls in it, so the boundary between occupied and empty voxel centres
+# lies on average half a voxel outside the points, on the observed side as on the CNN's; F is
+# about a signed distance in voxels, so the surface is taken at F = 0.5 instead of 0. Measured on
+# a perfect-CNN box (tests/test_reconstruct.py): mean Hausdorff to the truth 1.89 mm for the
+# fast mesh, 2.27 mm for the paper's steps, 0.98 mm with both additions.
+SURFACE_LEVEL = 0.5
 
 
 def mean_nn_distance(points: np.ndarray, step: int = DENSITY_SAMPLE_STEP) -> float:
@@ -146,16 +146,43 @@ def fill_gaps_along_z(occ: np.ndarray, max_gap: int) -> np.ndarray:
     return occ
 
 
+def _second_difference_gradient(F):
+    """Half the gradient of sum ||D2 F||^2 on the interior of an F padded by 2 (zero on the pad).
+
+    Per axis the normal equations have the stencil [1, -4, 6, -4, 1]; summed over x, y and z.
+    """
+    import torch
+
+    out = torch.zeros_like(F)
+    inner = out[2:-2, 2:-2, 2:-2]
+    inner += 18.0 * F[2:-2, 2:-2, 2:-2]
+    for axis in range(3):
+        n = F.shape[axis]
+
+        def shifted(k: int):
+            idx = [slice(2, -2)] * 3
+            idx[axis] = slice(2 + k, n - 2 + k)
+            return F[tuple(idx)]
+
+        inner += shifted(-2) + shifted(2) - 4.0 * (shifted(-1) + shifted(1))
+    return out
+
+
 def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band: int = BAND,
-                     damping: float = SMOOTH_DAMPING, device=None) -> np.ndarray:
+                     device=None) -> np.ndarray:
     """Algorithm 1, line 5: the embedding function F of Lempitsky (CVPR 2010), float32 array.
 
     Minimises the sum over voxels of squared second differences of F along x, y and z subject to
     sign constraints: inside voxels keep F >= margin, outside voxels F <= -margin, where a voxel's
     margin is its chessboard distance (in voxels) to the boundary layer. Only a band of ``band``
-    voxels around the boundary is optimised; F is fixed at +/-5 outside it. Solved by ``iterations``
-    damped projected Jacobi steps in torch (CUDA when present, else CPU), starting at +/-margin.
-    The surface is the level set F = 0.
+    voxels around the boundary is optimised; F is fixed at +/-5 outside it. The surface is the
+    level set F = 0 (F is about a signed distance in voxels near it).
+
+    Solver, in torch (CUDA when present, else CPU), starting at +/-margin: accelerated projected
+    gradient descent (FISTA, step 1/48 = 1 / the largest eigenvalue of the stencil) instead of the
+    paper's 500 damped Jacobi steps. Same objective, same constraints; on merged grids of this
+    project 100 FISTA steps reach a lower energy than 500 Jacobi steps and leave the surface within
+    0.03 voxel (mean) of the converged one, in a fifth of the time.
     """
     import torch
     from scipy import ndimage
@@ -168,36 +195,21 @@ def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band:
     sign = np.where(occ, 1.0, -1.0).astype(np.float32)
     in_band = margin < band
     F0 = np.where(in_band, sign * margin, sign * BAND_VALUE).astype(np.float32)
-    # Only band voxels change, so iterate on them alone: each gathers its 12 stencil neighbours
-    # from the whole (edge-padded) grid. Per axis the normal equations of sum ||D2 F||^2 have the
-    # stencil [1, -4, 6, -4, 1]: the Jacobi value is (4 * (F[i-1] + F[i+1]) - (F[i-2] + F[i+2])) / 6,
-    # averaged over the three axes, i.e. neighbour weights 4/18 and -1/18.
-    pad = 2
-    padded = np.pad(F0, pad, mode="edge")
-    shape = padded.shape
-    band_flat = np.ravel_multi_index((np.argwhere(in_band) + pad).T, shape)
-    strides = np.array([shape[1] * shape[2], shape[2], 1])
-    offsets, weights = [], []
-    for stride in strides:
-        for k, w in ((-1, 4.0), (1, 4.0), (-2, -1.0), (2, -1.0)):
-            offsets.append(k * stride)
-            weights.append(w / 18.0)
+    # Bounds: inside margin <= F, outside F <= -margin; voxels outside the band are pinned.
+    lower = np.where(~in_band, F0, np.where(occ, margin, -np.inf)).astype(np.float32)
+    upper = np.where(~in_band, F0, np.where(occ, np.inf, -margin)).astype(np.float32)
     dev = torch.device(device) if device is not None else (
         torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu"))
-    F = torch.from_numpy(padded.ravel().copy()).to(dev)
-    idx = torch.from_numpy(band_flat).to(dev)
-    neighbours = idx[:, None] + torch.tensor(offsets, device=dev)[None, :]
-    w = torch.tensor(weights, dtype=torch.float32, device=dev)
-    s = torch.from_numpy(sign[in_band]).to(dev)
-    m = torch.from_numpy(margin[in_band]).to(dev)
-    lower = torch.where(s > 0, m, torch.full_like(m, -np.inf))  # inside: margin <= F
-    upper = torch.where(s < 0, -m, torch.full_like(m, np.inf))  # outside: F <= -margin
-    Fb = F[idx].clone()
+    # Edge padding by 2 gives the stencil its neighbours at the grid border; pinned like the rest.
+    F, lo, hi = (torch.from_numpy(np.pad(a, 2, mode="edge")).to(dev) for a in (F0, lower, upper))
+    previous, t = F.clone(), 1.0
     for _ in range(iterations):
-        Fb = Fb + damping * (F[neighbours] @ w - Fb)
-        Fb = torch.maximum(torch.minimum(Fb, upper), lower)
-        F[idx] = Fb
-    return F.view(shape)[pad:-pad, pad:-pad, pad:-pad].cpu().numpy()
+        t_next = (1.0 + (1.0 + 4.0 * t * t) ** 0.5) / 2.0
+        y = F + ((t - 1.0) / t_next) * (F - previous)
+        previous = F
+        F = torch.maximum(torch.minimum(y - _second_difference_gradient(y) / 48.0, hi), lo)
+        t = t_next
+    return F[2:-2, 2:-2, 2:-2].cpu().numpy()
 
 
 def _carve_seen_free_space(occ: np.ndarray, observed_idx: np.ndarray) -> np.ndarray:
@@ -224,8 +236,6 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
         A closed mesh in the camera optical frame, metres.
     """
     import time
-
-    from scipy import ndimage
 
     t = {} if timings is None else timings
     t0 = time.perf_counter()
@@ -264,10 +274,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     obs_idx, cnn_idx = idx[:len(obs)], idx[len(obs):]
     cnn = np.zeros(shape, bool)
     cnn[cnn_idx[:, 0], cnn_idx[:, 1], cnn_idx[:, 2]] = True
-    cnn = _carve_seen_free_space(cnn, obs_idx)
-    if CNN_EROSION:
-        cnn = ndimage.binary_erosion(cnn, iterations=CNN_EROSION)
-    grid = cnn
+    grid = _carve_seen_free_space(cnn, obs_idx)
     grid[obs_idx[:, 0], obs_idx[:, 1], obs_idx[:, 2]] = True
     t["merge"] = time.perf_counter() - t0
 
@@ -280,10 +287,9 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     t["smooth"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    # Voxels on the boundary layer often end exactly at F = 0; vertices at grid points make
-    # degenerate, non-manifold triangles, so ties are broken towards each voxel's own label.
-    F = F + np.where(grid, TIE_BREAK, -TIE_BREAK).astype(np.float32)
-    verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE), level=0.0)
+    if not (F > SURFACE_LEVEL).any():
+        raise EmptyCompletionError("the merged volume is thinner than one voxel everywhere: no surface")
+    verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE), level=SURFACE_LEVEL)
     # Padded index i is voxel i - 1, whose centre is at origin + (i - 1 + 0.5) * leaf.
     mesh = trimesh.Trimesh(origin + (verts - 0.5) * leaf, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
