@@ -17,6 +17,10 @@ from skimage import measure
 from .voxel import GridFrame
 
 OCCUPANCY_LEVEL = 0.5
+# On a binary volume the saddle of every face with two diagonal occupied corners lies exactly on
+# the level 0.5, and marching cubes may then join four triangles at one edge (not watertight).
+# A hair above the level keeps diagonal voxels apart; on real-valued data it changes nothing.
+LEVEL_NUDGE = 1e-4
 
 
 class EmptyCompletionError(ValueError):
@@ -33,7 +37,7 @@ def grid_mesh(values: np.ndarray, frame: GridFrame, level: float) -> trimesh.Tri
         raise EmptyCompletionError("no voxel is above the iso level: the completion is empty")
     pad_value = min(float(values.min()), level) - 1.0
     padded = np.pad(np.asarray(values, dtype=np.float32), 1, constant_values=pad_value)
-    verts, faces, _, _ = measure.marching_cubes(padded, level=level)
+    verts, faces, _, _ = measure.marching_cubes(padded, level=level + LEVEL_NUDGE)
     # Padded index i is voxel i - 1, whose centre sits at grid coordinate (i - 1) + 0.5.
     mesh = trimesh.Trimesh(frame.to_metres(verts - 0.5), faces, process=True)
     mesh.remove_unreferenced_vertices()

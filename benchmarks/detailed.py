@@ -1,0 +1,107 @@
+"""Speed of the detailed mesh (Algorithm 1) on tabletop captures, step by step.
+
+    python benchmarks/detailed.py [--seeds 0 1 2] [--repeats 3] [--weights PATH]
+
+Inputs: the generated default scenes of ``--seeds`` (Kinect model, 640x480, objects about 0.8-1.1 m
+from the camera) and the organized real captures in ../shared/data/real.
+
+For every segment that can be completed: voxelize + CNN (:func:`pipeline.complete_points`), then
+:func:`reconstruct.detailed_mesh` ``--repeats`` times (median per segment). End to end = voxelize
++ CNN + Algorithm 1, what the viewer's "Detailed mesh" button costs on a segment not yet completed.
+Printed: medians over segments of each step of Algorithm 1 and of the total, with the segment's
+distance from the camera.
+
+The paper (CUDA solver, Titan X): 2.136 s per detailed completion. Targets on 2 CPU cores:
+detailed mesh <= 1.0 s end to end, the smoothing solver <= 0.5 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
+
+from pipeline import load_captures  # noqa: E402  (benchmarks/pipeline.py)
+
+STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge + carve"),
+         ("fill_gaps", "fill gaps along z"), ("smooth", "smoothing solver"), ("marching_cubes", "marching cubes"))
+TARGET = {"smooth": 0.5, "total": 1.0}
+PAPER_SECONDS = 2.136
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="default-scene seeds")
+    ap.add_argument("--repeats", type=int, default=3, help="detailed meshes per segment")
+    ap.add_argument("--weights", default=None, help="CNN weights (default: the shipped model)")
+    args = ap.parse_args(argv)
+
+    from shapeviewer.model import load_completer
+    from shapeviewer.pipeline import SegmentTooSmallError, check_segment, complete_points
+    from shapeviewer.reconstruct import detailed_mesh
+    from shapeviewer.segment import segment_scene
+
+    completer = load_completer(args.weights)
+    rows: dict[str, list[float]] = {k: [] for k, _ in STEPS} | {"cnn": [], "algorithm_1": [], "total": []}
+    ratios, distances = [], []
+    warm = False
+    for cap in load_captures(args.seeds):
+        for seg in segment_scene(cap).segments:
+            try:
+                points = check_segment(seg.points_cam)
+            except SegmentTooSmallError:
+                continue
+            t0 = time.perf_counter()
+            c = complete_points([points], completer, [seg.id])[0]
+            cnn = time.perf_counter() - t0
+            if c.fast_mesh is None:
+                continue
+            if not warm:  # the first torch call of the solver pays one-off set-up costs
+                detailed_mesh(c.probabilities, c.frame, points)
+                warm = True
+            runs = []
+            for _ in range(args.repeats):
+                steps: dict = {}
+                t0 = time.perf_counter()
+                detailed_mesh(c.probabilities, c.frame, points, timings=steps)
+                runs.append((time.perf_counter() - t0, steps))
+            seconds, steps = sorted(runs, key=lambda r: r[0])[len(runs) // 2]
+            for key, _ in STEPS:
+                rows[key].append(steps[key])
+            rows["cnn"].append(cnn)
+            rows["algorithm_1"].append(seconds)
+            rows["total"].append(cnn + seconds)
+            ratios.append(steps["upsample_ratio"])
+            distances.append(float(statistics.median(points[:, 2])))
+            print(f"{cap.source} segment {seg.id}: {len(points)} points at {distances[-1]:.2f} m, "
+                  f"r = {ratios[-1]}, Algorithm 1 {seconds:.3f} s", file=sys.stderr)
+
+    print(f"\nSegments: {len(ratios)} (distance from camera {min(distances):.2f}-{max(distances):.2f} m, "
+          f"median {statistics.median(distances):.2f} m; up-sampling ratio r: "
+          f"{', '.join(f'{r}: {ratios.count(r)}' for r in sorted(set(ratios)))})")
+    print(f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; load average {os.getloadavg()[0]:.1f}\n")
+    print(f"| {'step':34s} | {'median':>9s} | {'target':>10s} |")
+    print(f"|{'-' * 36}|{'-' * 11}|{'-' * 12}|")
+    ok = True
+    table = [("voxelize + CNN", "cnn")] + [(f"  {label}", key) for key, label in STEPS] + [
+        ("Algorithm 1 (sum of the steps)", "algorithm_1"), ("**end to end**", "total")]
+    for label, key in table:
+        med = statistics.median(rows[key])
+        target = ""
+        if key in TARGET:
+            ok &= med <= TARGET[key]
+            target = f"{'ok' if med <= TARGET[key] else 'MISSED'} {TARGET[key]:.1f} s"
+        print(f"| {label:34s} | {med:7.3f} s | {target:>10s} |")
+    print(f"\nThe paper: {PAPER_SECONDS} s per detailed completion (CUDA).")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
