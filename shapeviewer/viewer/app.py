@@ -40,6 +40,7 @@ from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete
 from ..reconstruct import detailed_mesh
 from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
+from .dataset import DatasetHooks, DatasetTab
 from .grasps import GraspController, GraspJob
 from .rays import pick_segment
 from .visuals import default_view, depth_colors, probability_colors, shade, surface_voxels, voxel_cubes
@@ -107,12 +108,14 @@ class ViewerApp:
         max_cloud_points: draw at most this many points of the Cloud layer (None = all); picking and
             completion always use every point.
         announce: called with the URL as soon as the server listens (before the scene is built).
+        results: the Dataset tab's results store: a folder written by ``shapeviewer evaluate``,
+            ``"default"`` (a small sample store, built in the background on first use), or None (none).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, seed: int = 0,
                  cloud: str | Path | Capture | None = None, weights: str | Path | None = None,
                  intrinsics: Intrinsics | None = None, max_cloud_points: int | None = None,
-                 announce: Callable[[str], None] | None = None) -> None:
+                 announce: Callable[[str], None] | None = None, results: str | Path | None = None) -> None:
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = self.server.get_port()
         self.host = host
@@ -127,22 +130,31 @@ class ViewerApp:
         self._nodes: dict[str, viser.SceneNodeHandle] = {}
         self._loading_notes: dict[int, viser.NotificationHandle] = {}
         self._segment_options: dict[str, int] = {}  # dropdown entry -> segment id
+        self.dataset: DatasetTab | None = None
+        self._pipeline_visible = True  # False while the Dataset tab shows its scene
 
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Docked, the panel takes its own column instead of floating over (and hiding) the scene.
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("+z")
-        self.panel = P.build_panel(self.server.gui, seed)
+        tabs = self.server.gui.add_tab_group()
+        pipeline_tab = tabs.add_tab("Pipeline", viser.Icon.CUBE)
+        dataset_tab = tabs.add_tab("Dataset", viser.Icon.DATABASE)
+        with pipeline_tab:
+            self.panel = P.build_panel(self.server.gui, seed)
         self._layer_roots = {layer.key: self.server.scene.add_frame(f"/{layer.key}", show_axes=False,
                                                                     visible=layer.visible)
                              for layer in P.LAYERS}
-        # The Grasps folder goes right after Completion (viser orders folders by a global counter).
-        self.grasps = GraspController(self, order=self.panel.timings.order + 0.5)
+        with pipeline_tab:
+            # The Grasps folder goes right after Completion (viser orders folders by a global counter).
+            self.grasps = GraspController(self, order=self.panel.timings.order + 0.5)
         self._wire_callbacks()
         if announce is not None:
             announce(self.url)
 
         try:
+            self.dataset = DatasetTab(self.server, dataset_tab, pipeline_tab, results,
+                                      DatasetHooks(self.set_pipeline_visible, self.load_capture, self._notify), weights)
             with self._job_slot(None) as ok:
                 assert ok  # nothing else can run yet
                 self.completer = load_completer(weights)
@@ -160,7 +172,7 @@ class ViewerApp:
                 else:
                     capture = self._default_capture(seed)
                 self._set_scene(capture)
-        except BaseException:  # a bad --cloud/--weights: do not leave the server thread running
+        except BaseException:  # a bad --cloud/--weights/--results: do not leave the server thread running
             self.server.stop()
             raise
 
@@ -187,6 +199,16 @@ class ViewerApp:
     def load_capture(self, capture: Capture, client: viser.ClientHandle | None = None) -> bool:
         """Show an already loaded capture."""
         return self._load(lambda: capture, capture.source, client)
+
+    def set_pipeline_visible(self, visible: bool) -> None:
+        """Show or hide every pipeline node (the Dataset tab draws in the same 3D scene); layers keep
+        their checkboxes' state."""
+        self._pipeline_visible = visible
+        for key, root in self._layer_roots.items():
+            root.visible = visible and self.panel.layers[key].value
+        for name in ("/sensor", "/table"):
+            if name in self._nodes:
+                self._nodes[name].visible = visible
 
     def pick(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> int | None:
         """The segment a world-frame ray hits first (None when it misses all segments)."""
@@ -446,6 +468,8 @@ class ViewerApp:
             points_world[s.id] = transform_points(T, pts[np.isfinite(pts).all(axis=1)])
         scene = LoadedScene(capture, seg, T, seg_seconds, segments, points_world)
 
+        if self.dataset is not None:
+            self.dataset.leave()  # a new scene is what the user wants to see
         self._clear_nodes()
         self.grasps.clear()
         self.scene, self.completions, self.selected, self.last_timings = scene, {}, None, {}
@@ -635,6 +659,8 @@ class ViewerApp:
 
         @self.server.scene.on_click()
         def _(event: viser.SceneClickEvent) -> None:
+            if not self._pipeline_visible:  # the dataset is on screen: its clicks are not segment picks
+                return
             sid = self.pick(event.ray_origin, event.ray_direction)
             if sid is None:
                 self._notify(event.client, "No segment there", "Click on a coloured segment to complete it.",
@@ -666,7 +692,8 @@ class ViewerApp:
         p.load_cloud.on_click(lambda event: self.load_cloud(p.cloud_path.value, event.client))
 
         for key, box in p.layers.items():
-            box.on_update(lambda _event, key=key, box=box: setattr(self._layer_roots[key], "visible", box.value))
+            box.on_update(lambda _event, key=key, box=box: setattr(self._layer_roots[key], "visible",
+                                                                   box.value and self._pipeline_visible))
 
         @p.cloud_colors.on_update
         def _(_event: viser.GuiEvent) -> None:
@@ -741,13 +768,16 @@ class ViewerApp:
 
 
 def serve(host: str = "127.0.0.1", port: int = 8080, seed: int = 0, cloud: str | Path | None = None,
-          weights: str | Path | None = None, intrinsics: Intrinsics | None = None, block: bool = True) -> ViewerApp:
+          weights: str | Path | None = None, intrinsics: Intrinsics | None = None, block: bool = True,
+          results: str | Path | None = None) -> ViewerApp:
     """Start the viewer (``python app.py`` and ``shapeviewer serve``); print its URL; serve until Ctrl-C.
 
-    With ``block=False`` returns the running :class:`ViewerApp` instead.
+    ``results``: the Dataset tab's results folder; None = the sample store in the user cache (built
+    in the background on first run). With ``block=False`` returns the running :class:`ViewerApp` instead.
     """
     app = ViewerApp(host, port, seed, cloud, weights, intrinsics,
-                    announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True))
+                    announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True),
+                    results="default" if results is None else results)
     print(f"shapeviewer: ready on {app.url}  (Ctrl-C to stop)", flush=True)
     if not block:
         return app

@@ -1,0 +1,818 @@
+"""The results store: a folder written by ``shapeviewer evaluate``, indexed in SQLite for browsing.
+
+Folder layout (relative paths; everything but the index is written by the evaluation)::
+
+    <root>/views/<stem>.json          one file per finished view (see below)
+    <root>/meshes/<stem>__truth.ply   ground-truth mesh, camera optical frame, metres
+    <root>/meshes/<stem>__points.ply  the partial view (points), camera optical frame, metres
+    <root>/meshes/<stem>__<method>.ply  each method's completion, camera optical frame, metres
+    <root>/grasps/<stem>__<method>.json grasps planned on a completion (``grasp.export`` JSON)
+    <root>/index.sqlite               this module's index (WAL mode), rebuilt from the files at will
+
+with ``stem = name.replace('/', '__') + f'__{view:03d}'``. A view file is either the current
+format, a dict::
+
+    {"object", "view", "view_set", "seed", "files": {"truth": .., "points": .., "<method>": ..},
+     "rows": [completion rows], "grasps": [{"method", "hand", "file", "n", "joint_error_deg",
+     "pose_error_mm", "epsilon_planned", "epsilon_executed", "force_closure_planned",
+     "lift_success", "seconds_plan", "error"}]}
+
+or the first format, a bare list of completion rows (meshes then sit at the paths above). A
+completion row has the keys of :data:`evaluate.ROW_FIELDS` (metrics NaN when the method failed).
+
+:meth:`ResultsStore.sync` ingests new and changed view files by (mtime, size), so a store can be
+read while an evaluation is still adding views, and extended by later runs. A file that cannot be
+read (half written, corrupt) is skipped with a warning and retried when it changes. The index is
+a cache of the files: deleting ``index.sqlite`` loses nothing.
+
+The read API returns plain dataclasses and dicts; this module never imports viser.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import logging
+import math
+import os
+import sqlite3
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import dataset
+from .evaluate import METHODS, METRICS, PAPER, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, tables_markdown
+
+log = logging.getLogger(__name__)
+
+INDEX_NAME = "index.sqlite"
+SCHEMA_VERSION = 1
+# What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
+KINDS = ("truth", "points", *METHODS)
+# The metrics the browser filters and sorts by, and which way is better.
+HIGHER_IS_BETTER = {"jaccard": True, "hausdorff_mean_mm": False, "hausdorff_max_mm": False,
+                    "hausdorff_rms_mm": False, "geodesic": False}
+METRIC_TITLES = {"jaccard": "Jaccard", "hausdorff_mean_mm": "Hausdorff mean (mm)",
+                 "hausdorff_max_mm": "Hausdorff max (mm)", "hausdorff_rms_mm": "Hausdorff RMS (mm)",
+                 "geodesic": "Geodesic divergence"}
+GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
+                "force_closure_planned", "lift_success", "seconds_plan")
+# SPEC §8, paper Table IV (simulated execution): joint error (deg) and pose error (mm) per evaluation
+# set for Partial, Mirror, Ours (the paper's RANSAC column has no counterpart here).
+PAPER_GRASPS = {"joint_error_deg": {"training_view": (6.09, 4.20, 1.75), "holdout_model": (7.59, 5.82, 4.56)},
+                "pose_error_mm": {"training_view": (16.0, 11.5, 4.3), "holdout_model": (18.3, 15.0, 13.2)}}
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
+CREATE TABLE IF NOT EXISTS files (path TEXT PRIMARY KEY, mtime_ns INTEGER, size INTEGER, status TEXT,
+                                  message TEXT, object TEXT, view INTEGER);
+CREATE TABLE IF NOT EXISTS objects (name TEXT PRIMARY KEY, split TEXT, source TEXT,
+                                    extent_x REAL, extent_y REAL, extent_z REAL, in_catalogue INTEGER);
+CREATE TABLE IF NOT EXISTS views (object TEXT, view INTEGER, view_set TEXT, seed INTEGER, file TEXT,
+                                  truth TEXT, points TEXT, PRIMARY KEY (object, view));
+CREATE TABLE IF NOT EXISTS completions (object TEXT, view INTEGER, method TEXT, jaccard REAL,
+                                        hausdorff_mean_mm REAL, hausdorff_max_mm REAL, hausdorff_rms_mm REAL,
+                                        geodesic REAL, seconds REAL, error TEXT, mesh TEXT,
+                                        PRIMARY KEY (object, view, method));
+CREATE TABLE IF NOT EXISTS grasps (object TEXT, view INTEGER, method TEXT, hand TEXT, file TEXT, n INTEGER,
+                                   joint_error_deg REAL, pose_error_mm REAL, epsilon_planned REAL,
+                                   epsilon_executed REAL, force_closure_planned REAL, lift_success REAL,
+                                   seconds_plan REAL, error TEXT, PRIMARY KEY (object, view, method, hand));
+CREATE INDEX IF NOT EXISTS completions_by_method ON completions (method, object);
+"""
+
+
+def view_stem(name: str, view: int) -> str:
+    """The file-name stem of one view: ``ycb/025_mug``, 7 -> ``ycb__025_mug__007``."""
+    return f"{name.replace('/', '__')}__{int(view):03d}"
+
+
+# ----------------------------------------------------------------------------------------------
+# Records (plain data out of the store)
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """One catalogue object (or an object that only the results know) with its results.
+
+    Attributes:
+        name: catalogue name, e.g. ``ycb/025_mug``.
+        split: ``train`` or ``holdout_model``.
+        source: ``ycb`` or ``pybullet`` (``unknown`` when the catalogue does not know the object).
+        extents: (3,) bounding-box size in metres (NaN when unknown).
+        views: number of views with results.
+        means: method -> metric -> mean over the views where the method succeeded (NaN if none).
+        failed: method -> number of views where the method failed.
+    """
+
+    name: str
+    split: str
+    source: str
+    extents: tuple[float, float, float]
+    views: int
+    means: dict[str, dict[str, float]] = field(default_factory=dict)
+    failed: dict[str, int] = field(default_factory=dict)
+
+    def mean(self, method: str, metric: str) -> float:
+        return self.means.get(method, {}).get(metric, math.nan)
+
+
+@dataclass(frozen=True)
+class ViewInfo:
+    """One view with results.
+
+    Attributes:
+        object, view: which view (``view`` numbers the 726-view orientation grid).
+        view_set: ``training_view``, ``holdout_view`` or ``holdout_model``.
+        seed: the evaluation seed (None for the first file format, which did not record it: 0 was
+            its default).
+        file: the view file, relative to the store root.
+        truth, points: mesh files relative to the root (None when missing).
+    """
+
+    object: str
+    view: int
+    view_set: str
+    seed: int | None
+    file: str
+    truth: str | None
+    points: str | None
+
+    @property
+    def stem(self) -> str:
+        return view_stem(self.object, self.view)
+
+
+@dataclass(frozen=True)
+class CompletionResult:
+    """One method's completion of a view: the metrics (NaN when it failed), its time and mesh file."""
+
+    method: str
+    jaccard: float
+    hausdorff_mean_mm: float
+    hausdorff_max_mm: float
+    hausdorff_rms_mm: float
+    geodesic: float
+    seconds: float
+    error: str
+    mesh: str | None
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+
+@dataclass(frozen=True)
+class GraspSummary:
+    """The grasps planned on one method's completion of a view and executed on the true object.
+
+    Attributes:
+        method, hand: the completion the grasps were planned on, and the hand.
+        file: the grasps JSON (``grasp.export`` format) relative to the root, or None.
+        n: number of grasps.
+        joint_error_deg, pose_error_mm: planned vs executed (paper Table IV), means over the grasps.
+        epsilon_planned, epsilon_executed: GraspIt's epsilon quality, planned and executed.
+        force_closure_planned: as the evaluation recorded it (a share of grasps, or a flag).
+        lift_success: as the evaluation recorded it (a share of grasps, or a flag).
+        seconds_plan: planning time.
+        error: why planning or execution failed ("" when it did not).
+    """
+
+    method: str
+    hand: str
+    file: str | None
+    n: int
+    joint_error_deg: float
+    pose_error_mm: float
+    epsilon_planned: float
+    epsilon_executed: float
+    force_closure_planned: float
+    lift_success: float
+    seconds_plan: float
+    error: str
+
+
+@dataclass
+class SyncReport:
+    """What one :meth:`ResultsStore.sync` did: view files added, updated, removed, skipped (path, why)."""
+
+    added: int = 0
+    updated: int = 0
+    removed: int = 0
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.added or self.updated or self.removed)
+
+
+# ----------------------------------------------------------------------------------------------
+# Parsing view files
+
+
+class ViewFileError(ValueError):
+    """A view file that cannot be read (half written, corrupt, or not a view file)."""
+
+
+def _num(v) -> float:
+    """A metric value as float; None, "", or anything unreadable is NaN."""
+    if v is None or v == "":
+        return math.nan
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _db(v: float) -> float | None:
+    """SQLite stores NaN as NULL; say so explicitly."""
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+
+
+def _undb(v) -> float:
+    return math.nan if v is None else float(v)
+
+
+def parse_view_file(text: str, rel_path: str, root: Path) -> dict:
+    """A view file's content as ``{"object", "view", "view_set", "seed", "files", "rows", "grasps"}``.
+
+    ``files`` maps kind (truth, points, method) to a path relative to ``root`` and only holds files
+    that exist. Raises :class:`ViewFileError` saying what is wrong.
+    """
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ViewFileError(f"not JSON ({e.msg} at line {e.lineno})") from None
+    if isinstance(doc, list):  # the first format: completion rows only, meshes at fixed paths
+        rows, grasps, seed, files = doc, [], None, None
+        if not rows:
+            raise ViewFileError("no rows")
+        head = rows[0]
+    elif isinstance(doc, dict):
+        rows, grasps, seed, files, head = doc.get("rows"), doc.get("grasps") or [], doc.get("seed"), \
+            doc.get("files"), doc
+        if not isinstance(rows, list):
+            raise ViewFileError("no 'rows' list")
+        if not isinstance(grasps, list) or not all(isinstance(g, dict) for g in grasps):
+            raise ViewFileError("'grasps' is not a list of objects")
+    else:
+        raise ViewFileError(f"a JSON {type(doc).__name__}, not a view")
+    if not isinstance(head, dict):
+        raise ViewFileError("rows are not objects")
+    try:
+        name, view = str(head["object"]), int(head["view"])
+    except (KeyError, TypeError, ValueError):
+        raise ViewFileError("no object name and view number") from None
+    for r in rows:
+        if not isinstance(r, dict) or r.get("object", name) != name or int(r.get("view", view)) != view \
+                or "method" not in r:
+            raise ViewFileError("rows of different views, or without a method")
+    view_set = str(head.get("view_set") or (rows[0].get("view_set") if rows else "") or dataset.view_split(name, view))
+    stem = view_stem(name, view)
+    if not isinstance(files, dict):
+        files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS}
+    files = {str(k): str(v) for k, v in files.items() if isinstance(v, str) and (root / v).is_file()}
+    return {"object": name, "view": view, "view_set": view_set, "seed": None if seed is None else int(seed),
+            "files": files, "rows": rows, "grasps": grasps}
+
+
+# ----------------------------------------------------------------------------------------------
+# The store
+
+
+class ResultsStore:
+    """A results folder and its SQLite index (``<root>/index.sqlite``, WAL mode).
+
+    Safe to use from several threads and processes: every call opens its own connection, writes
+    happen in one transaction per view file, and WAL lets readers go on while a sync writes.
+
+    Args:
+        root: the results folder (created when missing).
+        sync: ingest the view files now (otherwise call :meth:`sync`).
+    """
+
+    def __init__(self, root: str | Path, sync: bool = True) -> None:
+        self.root = Path(root).expanduser().resolve()
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.index_path = self.root / INDEX_NAME
+        self._sync_lock = threading.Lock()  # one sync at a time per process (SQLite serialises processes)
+        self._catalogue_done = False
+        with self._connect() as db:
+            db.execute("PRAGMA journal_mode=WAL")
+            version = None
+            try:
+                row = db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+                version = row and int(row[0])
+            except sqlite3.OperationalError:  # a new index
+                pass
+            if version not in (None, SCHEMA_VERSION):  # an older index: it is only a cache, rebuild it
+                for table in ("meta", "files", "objects", "views", "completions", "grasps"):
+                    db.execute(f"DROP TABLE IF EXISTS {table}")
+            db.executescript(_SCHEMA)
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
+        if sync:
+            self.sync()
+
+    def _connect(self) -> sqlite3.Connection:
+        db = sqlite3.connect(self.index_path, timeout=30.0, isolation_level=None)
+        db.execute("PRAGMA busy_timeout=30000")
+        return db
+
+    def _read(self, sql: str, args: Iterable = ()) -> list[tuple]:
+        db = self._connect()
+        try:
+            return db.execute(sql, tuple(args)).fetchall()
+        finally:
+            db.close()
+
+    # ------------------------------------------------------------------------------------------
+    # Writing the index
+
+    def sync(self) -> SyncReport:
+        """Ingest new and changed ``views/*.json`` (by mtime and size) and forget deleted ones."""
+        with self._sync_lock:
+            report = SyncReport()
+            db = self._connect()
+            try:
+                if not self._catalogue_done:
+                    self._sync_catalogue(db)
+                    self._catalogue_done = True
+                known = {p: (m, s, st) for p, m, s, st in db.execute("SELECT path, mtime_ns, size, status FROM files")}
+                seen = set()
+                views_dir = self.root / "views"
+                for path in sorted(views_dir.glob("*.json")) if views_dir.is_dir() else []:
+                    rel = path.relative_to(self.root).as_posix()
+                    seen.add(rel)
+                    try:
+                        st = path.stat()
+                    except FileNotFoundError:  # replaced or deleted while we looked
+                        continue
+                    old = known.get(rel)
+                    if old is not None and old[0] == st.st_mtime_ns and old[1] == st.st_size:
+                        continue
+                    self._ingest(db, rel, path, st, old, report)
+                for rel in set(known) - seen:
+                    self._forget(db, rel)
+                    report.removed += 1
+            finally:
+                db.close()
+            if report.changed or report.skipped:
+                log.info("results %s: %d added, %d updated, %d removed, %d skipped", self.root, report.added,
+                         report.updated, report.removed, len(report.skipped))
+            return report
+
+    def _sync_catalogue(self, db: sqlite3.Connection) -> None:
+        """Put every catalogue object in the objects table (the index lists objects without results too)."""
+        try:
+            entries = dataset.catalogue()
+        except Exception as e:  # no catalogue (missing packages): list the objects the results know
+            log.warning("object catalogue unavailable (%s); listing only objects with results", e)
+            return
+        key = hashlib.sha1("\n".join(f"{e.name} {e.split} {e.extents}" for e in entries).encode()).hexdigest()
+        row = db.execute("SELECT value FROM meta WHERE key='catalogue'").fetchone()
+        if row and row[0] == key:
+            return
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            db.executemany("INSERT OR REPLACE INTO objects VALUES (?, ?, ?, ?, ?, ?, 1)",
+                           [(e.name, e.split, e.source, *map(float, e.extents)) for e in entries])
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('catalogue', ?)", (key,))
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+
+    def _ingest(self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old, report: SyncReport) -> None:
+        try:
+            parsed = parse_view_file(path.read_text(), rel, self.root)
+        except (OSError, UnicodeDecodeError, ViewFileError) as e:
+            why = str(e)
+            if old is None or old[2] != "bad":  # warn once per version of the file
+                log.warning("results: skipping %s: %s (retried when the file changes)", rel, why)
+            report.skipped.append((rel, why))
+            # Remember the bad version (so it is not re-read until it changes); rows of an earlier
+            # good version stay: a view being rewritten keeps showing its last complete results.
+            db.execute("INSERT INTO files (path, mtime_ns, size, status, message) VALUES (?, ?, ?, 'bad', ?) "
+                       "ON CONFLICT(path) DO UPDATE SET mtime_ns=excluded.mtime_ns, size=excluded.size, "
+                       "status='bad', message=excluded.message", (rel, st.st_mtime_ns, st.st_size, why))
+            return
+        name, view, files = parsed["object"], parsed["view"], parsed["files"]
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            prev = db.execute("SELECT object, view FROM files WHERE path=?", (rel,)).fetchone()
+            if prev and prev[0] is not None and (prev[0], prev[1]) != (name, view):
+                self._delete_view(db, prev[0], prev[1])
+            self._delete_view(db, name, view)
+            db.execute("INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
+                       (name, dataset.model_split(name), name.partition("/")[0] if "/" in name else "unknown"))
+            db.execute("INSERT INTO views VALUES (?, ?, ?, ?, ?, ?, ?)",
+                       (name, view, parsed["view_set"], parsed["seed"], rel, files.get("truth"), files.get("points")))
+            completions = {}
+            for r in parsed["rows"]:
+                m = str(r["method"])
+                completions[m] = (name, view, m, *[_db(_num(r.get(k))) for k in METRICS], _db(_num(r.get("seconds"))),
+                                  str(r.get("error") or ""), files.get(m))
+            db.executemany("INSERT INTO completions VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", completions.values())
+            grasps = {}
+            for g in parsed["grasps"]:
+                method, hand = str(g.get("method", "")), str(g.get("hand", ""))
+                gfile = g.get("file")
+                gfile = gfile if isinstance(gfile, str) and (self.root / gfile).is_file() else None
+                n = g.get("n")
+                grasps[(method, hand)] = (name, view, method, hand, gfile, int(n) if isinstance(n, (int, float)) else 0,
+                                          *[_db(_num(g.get(k))) for k in GRASP_FIELDS[1:]], str(g.get("error") or ""))
+            db.executemany("INSERT INTO grasps VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", grasps.values())
+            db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
+                       (rel, st.st_mtime_ns, st.st_size, name, view))
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        if old is None:
+            report.added += 1
+        else:
+            report.updated += 1
+
+    @staticmethod
+    def _delete_view(db: sqlite3.Connection, name: str, view: int) -> None:
+        for table in ("views", "completions", "grasps"):
+            db.execute(f"DELETE FROM {table} WHERE object=? AND view=?", (name, view))
+
+    def _forget(self, db: sqlite3.Connection, rel: str) -> None:
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            row = db.execute("SELECT object, view FROM files WHERE path=?", (rel,)).fetchone()
+            if row and row[0] is not None:
+                self._delete_view(db, row[0], row[1])
+            db.execute("DELETE FROM files WHERE path=?", (rel,))
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+
+    # ------------------------------------------------------------------------------------------
+    # Reading: objects, views, completions, grasps
+
+    def counts(self) -> dict[str, int]:
+        """``{"objects": with results, "views", "completions", "grasps", "skipped": unreadable files}``."""
+        (objects, views), = self._read("SELECT COUNT(DISTINCT object), COUNT(*) FROM views")
+        (completions,), = self._read("SELECT COUNT(*) FROM completions")
+        (grasps,), = self._read("SELECT COUNT(*) FROM grasps")
+        (skipped,), = self._read("SELECT COUNT(*) FROM files WHERE status='bad'")
+        return {"objects": objects, "views": views, "completions": completions, "grasps": grasps, "skipped": skipped}
+
+    def skipped_files(self) -> list[tuple[str, str]]:
+        """(path, why) of view files that could not be read at their current version."""
+        return [(p, m) for p, m in self._read("SELECT path, message FROM files WHERE status='bad' ORDER BY path")]
+
+    def objects(self, search: str = "", split: str | None = None, with_results: bool = True,
+                method: str = "Ours-fast", metric: str = "jaccard", order: str = "name",
+                metric_range: tuple[float, float] | None = None) -> list[ObjectSummary]:
+        """The object index, filtered and ordered.
+
+        Args:
+            search: case-insensitive substring of the name.
+            split: ``train`` or ``holdout_model`` (None: both).
+            with_results: only objects that have at least one view with results.
+            method, metric: the mean that ``order`` and ``metric_range`` use.
+            order: ``name``, ``worst`` (worst mean of ``metric`` first: lowest Jaccard, highest
+                distances), ``best``, or ``views`` (most views first). Objects without a mean go last.
+            metric_range: keep objects whose mean lies in [lo, hi] (objects without one are dropped).
+        """
+        if metric not in HIGHER_IS_BETTER:
+            raise ValueError(f"unknown metric {metric!r}; choose one of {tuple(HIGHER_IS_BETTER)}")
+        means: dict[str, dict[str, dict[str, float]]] = {}
+        failed: dict[str, dict[str, int]] = {}
+        cols = ", ".join(f"AVG(CASE WHEN error='' THEN {k} END)" for k in (*METRICS, "seconds"))
+        for name, m, n_failed, *vals in self._read(
+                f"SELECT object, method, SUM(error != ''), {cols} FROM completions GROUP BY object, method"):
+            means.setdefault(name, {})[m] = dict(zip((*METRICS, "seconds"), map(_undb, vals)))
+            failed.setdefault(name, {})[m] = int(n_failed or 0)
+        n_views = dict(self._read("SELECT object, COUNT(*) FROM views GROUP BY object"))
+        needle = search.strip().lower()
+        out = []
+        for name, sp, source, ex, ey, ez in self._read(
+                "SELECT name, split, source, extent_x, extent_y, extent_z FROM objects ORDER BY name"):
+            if needle and needle not in name.lower():
+                continue
+            if split and sp != split:
+                continue
+            if with_results and not n_views.get(name):
+                continue
+            o = ObjectSummary(name, sp, source, (_undb(ex), _undb(ey), _undb(ez)), int(n_views.get(name, 0)),
+                              means.get(name, {}), failed.get(name, {}))
+            if metric_range is not None:
+                v = o.mean(method, metric)
+                if math.isnan(v) or not metric_range[0] <= v <= metric_range[1]:
+                    continue
+            out.append(o)
+        if order in ("worst", "best"):
+            sign = 1.0 if HIGHER_IS_BETTER[metric] == (order == "worst") else -1.0
+            out.sort(key=lambda o: (math.isnan(o.mean(method, metric)),
+                                    0.0 if math.isnan(o.mean(method, metric)) else sign * o.mean(method, metric),
+                                    o.name))
+        elif order == "views":
+            out.sort(key=lambda o: (-o.views, o.name))
+        elif order != "name":
+            raise ValueError(f"unknown order {order!r}; use name, worst, best or views")
+        return out
+
+    def object(self, name: str) -> ObjectSummary:
+        found = [o for o in self.objects(search=name, with_results=False) if o.name == name]
+        if not found:
+            raise KeyError(f"no object {name!r} in the results store {self.root}")
+        return found[0]
+
+    def views(self, name: str) -> list[ViewInfo]:
+        """The views of an object that have results, by view number."""
+        return [ViewInfo(*r) for r in self._read(
+            "SELECT object, view, view_set, seed, file, truth, points FROM views WHERE object=? ORDER BY view", (name,))]
+
+    def view(self, name: str, view: int) -> ViewInfo:
+        rows = self._read("SELECT object, view, view_set, seed, file, truth, points FROM views WHERE object=? AND view=?",
+                          (name, int(view)))
+        if not rows:
+            raise KeyError(f"no results for {name!r} view {view} in {self.root}")
+        return ViewInfo(*rows[0])
+
+    def completions(self, name: str, view: int) -> list[CompletionResult]:
+        """Each method's completion of a view, in :data:`evaluate.METHODS` order (others after)."""
+        rows = self._read(f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh FROM completions "
+                          "WHERE object=? AND view=?", (name, int(view)))
+        out = [CompletionResult(m, *map(_undb, vals), err or "", mesh) for m, *vals, err, mesh in rows]
+        rank = {m: i for i, m in enumerate(METHODS)}
+        return sorted(out, key=lambda c: (rank.get(c.method, len(rank)), c.method))
+
+    def grasps(self, name: str, view: int) -> list[GraspSummary]:
+        """Grasp summaries of a view (one per method and hand), in :data:`evaluate.METHODS` order."""
+        rows = self._read(f"SELECT method, hand, file, {', '.join(GRASP_FIELDS)}, error FROM grasps "
+                          "WHERE object=? AND view=?", (name, int(view)))
+        out = [GraspSummary(m, h, f, int(n or 0), *map(_undb, vals), err or "") for m, h, f, n, *vals, err in rows]
+        rank = {m: i for i, m in enumerate(METHODS)}
+        return sorted(out, key=lambda g: (rank.get(g.method, len(rank)), g.method, g.hand))
+
+    def rows(self, names: Iterable[str] | None = None) -> list[dict]:
+        """Completion rows in the evaluation's format (:data:`evaluate.ROW_FIELDS`, NaN metrics on failure)."""
+        sql = (f"SELECT c.object, c.view, v.view_set, c.method, {', '.join('c.' + k for k in METRICS)}, c.seconds, "
+               "c.error FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view")
+        wanted = None if names is None else set(names)
+        out = []
+        for r in self._read(sql + " ORDER BY c.object, c.view"):
+            if wanted is not None and r[0] not in wanted:
+                continue
+            d = dict(zip(ROW_FIELDS, r))
+            for k in (*METRICS, "seconds"):
+                d[k] = _undb(d[k])
+            d["error"] = d["error"] or ""
+            out.append(d)
+        rank = {m: i for i, m in enumerate(METHODS)}
+        out.sort(key=lambda d: (d["object"], d["view"], rank.get(d["method"], len(rank))))
+        return out
+
+    # ------------------------------------------------------------------------------------------
+    # Summaries (paper Tables I-IV)
+
+    def summary(self) -> dict:
+        """Per view set and method means (:func:`evaluate.summarize`'s format)."""
+        return summarize(self.rows())
+
+    def grasp_summary(self) -> dict:
+        """``{view_set: {method: {"n": views, "failed": views, <GRASP_FIELDS means>}}}`` over views with grasps."""
+        out: dict = {}
+        cols = ", ".join(f"AVG(CASE WHEN g.error='' THEN g.{k} END)" for k in GRASP_FIELDS)
+        for view_set, method, n, failed, *vals in self._read(
+                f"SELECT v.view_set, g.method, SUM(g.error=''), SUM(g.error!=''), {cols} FROM grasps g "
+                "JOIN views v ON v.object=g.object AND v.view=g.view GROUP BY v.view_set, g.method"):
+            out.setdefault(view_set, {})[method] = {"n": int(n or 0), "failed": int(failed or 0),
+                                                    **dict(zip(GRASP_FIELDS, map(_undb, vals)))}
+        return out
+
+    def tables_markdown(self) -> str:
+        """Tables I-III (completion) and, when grasp results exist, Table IV (grasps), with the paper's figures."""
+        md = tables_markdown(self.summary())
+        grasps = self.grasp_summary()
+        if not grasps:
+            return md + "\n_No grasp results in this store (Table IV)._\n"
+        lines = ["## Table IV: grasps planned on the completion, executed on the true object", "",
+                 "| View set | Method | views | joint error (deg) | pose error (mm) | lift success | paper joint / pose |",
+                 "|---|---|---:|---:|---:|---:|---|"]
+        for s in VIEW_SETS:
+            for i, m in enumerate(METHODS):
+                c = grasps.get(s, {}).get(m)
+                if c is None:
+                    continue
+                paper = [PAPER_GRASPS[k].get(s) for k in ("joint_error_deg", "pose_error_mm")]
+                ref = f"{paper[0][min(i, 2)]:.2f} / {paper[1][min(i, 2)]:.1f}" if paper[0] else "–"
+                lines.append(f"| {SET_TITLES[s]} | {m} | {c['n']} | {_fmt(c['joint_error_deg'], 2)} | "
+                             f"{_fmt(c['pose_error_mm'], 1)} | {_fmt_share(c['lift_success'])} | {ref} |")
+        return md + "\n" + "\n".join(lines) + "\n"
+
+    # ------------------------------------------------------------------------------------------
+    # Files
+
+    def path(self, rel: str) -> Path:
+        """An absolute path inside the store (refuses paths that leave the root)."""
+        p = (self.root / rel).resolve()
+        if not p.is_relative_to(self.root):
+            raise ValueError(f"{rel!r} is outside the results store")
+        return p
+
+    def mesh_file(self, name: str, view: int, kind: str) -> Path:
+        """The file of ``kind`` (truth, points or a method) of a view. KeyError when there is none."""
+        if kind in ("truth", "points"):
+            rel = getattr(self.view(name, view), kind)
+        else:
+            rel = next((c.mesh for c in self.completions(name, view) if c.method == kind), None)
+        if not rel:
+            raise KeyError(f"{name} view {view} has no {kind} file")
+        return self.path(rel)
+
+    def load_mesh(self, name: str, view: int, kind: str):
+        """A view's mesh ``kind`` (truth or a method), full resolution, camera optical frame, metres."""
+        import trimesh
+
+        mesh = trimesh.load(self.mesh_file(name, view, kind), file_type="ply", force="mesh", process=False)
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError(f"{name} view {view}: the {kind} file has no triangles")
+        return mesh
+
+    def load_points(self, name: str, view: int) -> np.ndarray:
+        """The partial view (N, 3), camera optical frame, metres."""
+        import trimesh
+
+        cloud = trimesh.load(self.mesh_file(name, view, "points"), file_type="ply", process=False)
+        return np.asarray(cloud.vertices, dtype=np.float64).reshape(-1, 3)
+
+    def T_cam_obj(self, name: str, view: int) -> np.ndarray:
+        """4x4 pose of the object frame (bounding-box centre, catalogue axes) in the camera frame.
+
+        The evaluation renders each view as the training data is (:func:`generate.view_pose` of
+        name, view and seed), so the pose follows from those three numbers.
+        """
+        from .generate import view_pose
+
+        info = self.view(name, view)
+        return view_pose(name, view, 0 if info.seed is None else info.seed)
+
+    def capture(self, name: str, view: int):
+        """The view as a :class:`~shapeviewer.capture.Capture` the live pipeline can complete.
+
+        ``points_cam`` are the saved partial points (camera optical frame, metres). The world frame
+        is the object's frame with its lowest point on z = 0 (the evaluation renders the object
+        floating, without a table; this puts a virtual floor under it), and ``objects`` holds the
+        ground truth there, so the viewer draws the capture upright with its sensor.
+        """
+        from .camera import Intrinsics
+        from .capture import Capture, SceneObject
+
+        points = self.load_points(name, view)
+        T_obj_cam = np.linalg.inv(self.T_cam_obj(name, view))
+        truth_obj = self.load_mesh(name, view, "truth")
+        truth_obj.apply_transform(T_obj_cam)
+        T_world_obj = np.eye(4)
+        T_world_obj[2, 3] = -float(truth_obj.vertices[:, 2].min())
+        return Capture(points_cam=points, intrinsics=Intrinsics.kinect(), T_world_cam=T_world_obj @ T_obj_cam,
+                       source=str(self.mesh_file(name, view, "points")),
+                       objects=[SceneObject(name, truth_obj, T_world_obj)])
+
+    def grasp_set(self, name: str, view: int, method: str, hand: str | None = None):
+        """The grasps planned on ``method``'s completion (:class:`grasp.export.GraspSet`), or None."""
+        from .grasp.export import grasps_from_json
+
+        for g in self.grasps(name, view):
+            if g.method == method and (hand is None or g.hand == hand) and g.file:
+                return grasps_from_json(self.path(g.file).read_bytes())
+        return None
+
+    # ------------------------------------------------------------------------------------------
+    # CSV exports
+
+    def view_csv(self, name: str, view: int) -> str:
+        """Per-method metrics (and grasp summaries) of one view as CSV text."""
+        info = self.view(name, view)
+        grasps = {g.method: g for g in self.grasps(name, view)}
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["object", "view", "view_set", "method", *METRICS, "seconds", "error", "mesh",
+                    "grasp_hand", *(f"grasp_{k}" for k in GRASP_FIELDS), "grasp_error"])
+        for c in self.completions(name, view):
+            g = grasps.get(c.method)
+            gcols = [g.hand, *(getattr(g, k) for k in GRASP_FIELDS), g.error] if g else [""] * (len(GRASP_FIELDS) + 2)
+            w.writerow([name, view, info.view_set, c.method, *(getattr(c, k) for k in METRICS), c.seconds, c.error,
+                        c.mesh or "", *gcols])
+        return buf.getvalue()
+
+    def rows_csv(self, names: Iterable[str] | None = None) -> str:
+        """Every completion row (of ``names``, default all objects) as CSV text, the evaluation's columns."""
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=ROW_FIELDS)
+        w.writeheader()
+        w.writerows(self.rows(names))
+        return buf.getvalue()
+
+
+def _fmt(v: float, digits: int) -> str:
+    return "–" if v is None or math.isnan(v) else f"{v:.{digits}f}"
+
+
+def _fmt_share(v: float) -> str:
+    return "–" if v is None or math.isnan(v) else f"{100 * v:.0f}%"
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing view files (the current format) and the sample store
+
+
+def write_view_file(root: str | Path, name: str, view: int, view_set: str, seed: int, rows: list[dict],
+                    grasps: list[dict] | None = None) -> Path:
+    """Write ``views/<stem>.json`` in the current format, atomically (write a temp file, then rename).
+
+    ``files`` lists the meshes of the view that exist under ``root/meshes``.
+    """
+    root = Path(root)
+    stem = view_stem(name, view)
+    files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS if (root / "meshes" / f"{stem}__{k}.ply").is_file()}
+    doc = {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed), "files": files,
+           "rows": rows, "grasps": grasps or []}
+    path = root / "views" / f"{stem}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")  # not *.json: a sync never reads a half-written temp file
+    tmp.write_text(json.dumps(doc, indent=1))
+    os.replace(tmp, path)
+    return path
+
+
+# A few objects and views for a first look (``python app.py`` without --results): household YCB
+# objects of both model splits and a pybullet toy, views from all three evaluation sets.
+SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
+    ("ycb/021_bleach_cleanser", 0), ("ycb/021_bleach_cleanser", 120),
+    ("ycb/006_mustard_bottle", 100), ("ycb/006_mustard_bottle", 420),
+    ("ycb/025_mug", 180), ("ycb/025_mug", 0),
+    ("ycb/035_power_drill", 300),
+    ("pybullet/duck", 0),
+)
+SAMPLE_VERSION = 1
+
+
+def sample_store_dir(weights: str | Path | None = None) -> Path:
+    """Where the sample store of the given CNN weights lives (under :func:`dataset.cache_dir`).
+
+    The folder name holds a hash of the weights file, so new weights get a new sample store.
+    """
+    from .model import DEFAULT_WEIGHTS
+
+    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+    tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
+    return dataset.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
+
+
+def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMPLE_VIEWS, weights=None,
+                       seed: int = 0, progress: Callable[[int, int, str], None] | None = None,
+                       completer=None) -> ResultsStore:
+    """Evaluate ``views`` (all four methods, as ``shapeviewer evaluate`` does) into a results store.
+
+    Views already in the folder are skipped, so an interrupted build resumes. ``progress(done,
+    total, what)`` is called before each view and at the end; the store is synced after every view
+    so that a reader sees the views as they arrive.
+    """
+    from .evaluate import evaluate_view
+
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    store = ResultsStore(root)
+    views = list(views)
+    todo = [(n, v) for n, v in views if not (root / "views" / f"{view_stem(n, v)}.json").is_file()]
+    done = len(views) - len(todo)
+    if todo and completer is None:
+        from .model import load_completer
+
+        completer = load_completer(weights)
+    for name, view in todo:
+        if progress is not None:
+            progress(done, len(views), f"{name} view {view}")
+        t0 = time.perf_counter()
+        view_set = dataset.view_split(name, view)
+        result = evaluate_view(name, view, completer, root, seed=seed, view_set=view_set)
+        rows = result["rows"] if isinstance(result, dict) else result
+        grasps = result.get("grasps", []) if isinstance(result, dict) else []
+        write_view_file(root, name, view, view_set, seed, rows, grasps)
+        store.sync()
+        done += 1
+        log.info("sample store: %s view %d in %.1f s", name, view, time.perf_counter() - t0)
+    if progress is not None:
+        progress(done, len(views), "done")
+    return store
+
+
+def object_summary_dict(o: ObjectSummary) -> dict:
+    """An :class:`ObjectSummary` as a JSON-ready dict (NaN as None)."""
+    d = asdict(o)
+    d["means"] = {m: {k: _db(v) for k, v in vals.items()} for m, vals in o.means.items()}
+    d["extents"] = [_db(v) for v in o.extents]
+    return d
