@@ -39,7 +39,6 @@ import math
 import os
 import sqlite3
 import threading
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -47,7 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset
-from .evaluate import METHODS, METRICS, PAPER, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, tables_markdown
+from .evaluate import METHODS, METRICS, PAPER_COLUMN, PAPER_GRASP, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, \
+    tables_markdown
 
 log = logging.getLogger(__name__)
 
@@ -63,11 +63,6 @@ METRIC_TITLES = {"jaccard": "Jaccard", "hausdorff_mean_mm": "Hausdorff mean (mm)
                  "geodesic": "Geodesic divergence"}
 GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
                 "force_closure_planned", "lift_success", "seconds_plan")
-# SPEC §8, paper Table IV (simulated execution): joint error (deg) and pose error (mm) per evaluation
-# set for Partial, Mirror, Ours (the paper's RANSAC column has no counterpart here).
-PAPER_GRASPS = {"joint_error_deg": {"training_view": (6.09, 4.20, 1.75), "holdout_model": (7.59, 5.82, 4.56)},
-                "pose_error_mm": {"training_view": (16.0, 11.5, 4.3), "holdout_model": (18.3, 15.0, 13.2)}}
-
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 CREATE TABLE IF NOT EXISTS files (path TEXT PRIMARY KEY, mtime_ns INTEGER, size INTEGER, status TEXT,
@@ -406,7 +401,8 @@ class ResultsStore:
         db.execute("BEGIN IMMEDIATE")
         try:
             prev = db.execute("SELECT object, view FROM files WHERE path=?", (rel,)).fetchone()
-            if prev and prev[0] is not None and (prev[0], prev[1]) != (name, view):
+            had_rows = bool(prev and prev[0] is not None)
+            if had_rows and (prev[0], prev[1]) != (name, view):
                 self._delete_view(db, prev[0], prev[1])
             self._delete_view(db, name, view)
             db.execute("INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
@@ -434,10 +430,10 @@ class ResultsStore:
         except BaseException:
             db.execute("ROLLBACK")
             raise
-        if old is None:
-            report.added += 1
-        else:
+        if had_rows:
             report.updated += 1
+        else:  # new, or readable for the first time
+            report.added += 1
 
     @staticmethod
     def _delete_view(db: sqlite3.Connection, name: str, view: int) -> None:
@@ -607,8 +603,9 @@ class ResultsStore:
                 c = grasps.get(s, {}).get(m)
                 if c is None:
                     continue
-                paper = [PAPER_GRASPS[k].get(s) for k in ("joint_error_deg", "pose_error_mm")]
-                ref = f"{paper[0][min(i, 2)]:.2f} / {paper[1][min(i, 2)]:.1f}" if paper[0] else "–"
+                paper = [PAPER_GRASP[k].get(s) for k in ("joint_error_deg", "pose_error_mm")]
+                col = PAPER_COLUMN.get(m, -1)
+                ref = f"{paper[0][col]:.2f} / {paper[1][col]:.1f}" if paper[0] and col >= 0 else "–"
                 lines.append(f"| {SET_TITLES[s]} | {m} | {c['n']} | {_fmt(c['joint_error_deg'], 2)} | "
                              f"{_fmt(c['pose_error_mm'], 1)} | {_fmt_share(c['lift_success'])} | {ref} |")
         return md + "\n" + "\n".join(lines) + "\n"
@@ -729,21 +726,15 @@ def _fmt_share(v: float) -> str:
 # Writing view files (the current format) and the sample store
 
 
-def write_view_file(root: str | Path, name: str, view: int, view_set: str, seed: int, rows: list[dict],
-                    grasps: list[dict] | None = None) -> Path:
-    """Write ``views/<stem>.json`` in the current format, atomically (write a temp file, then rename).
+def write_view_record(root: str | Path, record: dict) -> Path:
+    """Write a view record (:func:`evaluate.view_record`'s format) to ``views/<stem>.json`` atomically.
 
-    ``files`` lists the meshes of the view that exist under ``root/meshes``.
+    The temp file is not ``*.json``, so a concurrent :meth:`ResultsStore.sync` never reads it half written.
     """
-    root = Path(root)
-    stem = view_stem(name, view)
-    files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS if (root / "meshes" / f"{stem}__{k}.ply").is_file()}
-    doc = {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed), "files": files,
-           "rows": rows, "grasps": grasps or []}
-    path = root / "views" / f"{stem}.json"
+    path = Path(root) / "views" / f"{view_stem(record['object'], record['view'])}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")  # not *.json: a sync never reads a half-written temp file
-    tmp.write_text(json.dumps(doc, indent=1))
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record, indent=1))  # NaN is written as NaN, which json reads back
     os.replace(tmp, path)
     return path
 
@@ -758,6 +749,16 @@ SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
     ("pybullet/duck", 0),
 )
 SAMPLE_VERSION = 1
+SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
+
+
+def sample_grasp_options():
+    """Grasps of the sample store: 5 Barrett grasps per completion from a smaller (still
+    deterministic) search than the evaluation's, about 5 s per view and method on 2 cores."""
+    from .evaluate import GraspOptions
+    from .grasp.plan import PlanSettings
+
+    return GraspOptions(n_grasps=5, settings=PlanSettings(samples=256, chains=16, steps=100, simulate=15))
 
 
 def sample_store_dir(weights: str | Path | None = None) -> Path:
@@ -772,41 +773,64 @@ def sample_store_dir(weights: str | Path | None = None) -> Path:
     return dataset.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
 
 
+def sample_store_complete(root: str | Path) -> bool:
+    return (Path(root) / SAMPLE_DONE).is_file()
+
+
 def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMPLE_VIEWS, weights=None,
                        seed: int = 0, progress: Callable[[int, int, str], None] | None = None,
-                       completer=None) -> ResultsStore:
-    """Evaluate ``views`` (all four methods, as ``shapeviewer evaluate`` does) into a results store.
+                       completer=None, grasps=True) -> ResultsStore:
+    """Evaluate ``views`` as ``shapeviewer evaluate`` does into a results store: first every view's
+    four completions, then (``grasps``: True for :func:`sample_grasp_options`, a
+    :class:`evaluate.GraspOptions`, or None) grasps planned on each and executed on the truth.
 
-    Views already in the folder are skipped, so an interrupted build resumes. ``progress(done,
-    total, what)`` is called before each view and at the end; the store is synced after every view
-    so that a reader sees the views as they arrive.
+    Finished work is skipped, so an interrupted build resumes. ``progress(done, total, what)`` is
+    called before each step and at the end; the store is synced after every step so that a reader
+    sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
     """
-    from .evaluate import evaluate_view
+    from .evaluate import evaluate_view, grasp_view, load_view, pending_grasps, view_record
 
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     store = ResultsStore(root)
     views = list(views)
-    todo = [(n, v) for n, v in views if not (root / "views" / f"{view_stem(n, v)}.json").is_file()]
-    done = len(views) - len(todo)
-    if todo and completer is None:
-        from .model import load_completer
+    options = sample_grasp_options() if grasps is True else grasps
+    total = len(views) * (2 if options is not None else 1)
+    done = 0
 
-        completer = load_completer(weights)
-    for name, view in todo:
+    def step(what: str) -> None:
         if progress is not None:
-            progress(done, len(views), f"{name} view {view}")
-        t0 = time.perf_counter()
-        view_set = dataset.view_split(name, view)
-        result = evaluate_view(name, view, completer, root, seed=seed, view_set=view_set)
-        rows = result["rows"] if isinstance(result, dict) else result
-        grasps = result.get("grasps", []) if isinstance(result, dict) else []
-        write_view_file(root, name, view, view_set, seed, rows, grasps)
-        store.sync()
+            progress(done, total, what)
+
+    records = {}
+    for name, view in views:
+        record = load_view(root, name, view, seed)
+        if record is None:
+            step(f"completing {name} view {view}")
+            if completer is None:
+                from .model import load_completer
+
+                completer = load_completer(weights)
+            view_set = dataset.view_split(name, view)
+            rows = evaluate_view(name, view, completer, root, seed=seed, view_set=view_set)
+            record = view_record(root, name, view, view_set, seed, rows)
+            write_view_record(root, record)
+            store.sync()
+        records[(name, view)] = record
         done += 1
-        log.info("sample store: %s view %d in %.1f s", name, view, time.perf_counter() - t0)
-    if progress is not None:
-        progress(done, len(views), "done")
+    if options is not None:
+        for name, view in views:
+            record = records[(name, view)]
+            for method in pending_grasps(record, options):
+                step(f"grasping {name} view {view} ({method})")
+                entry = grasp_view(root, record, method, options)
+                record["grasps"] = [g for g in record["grasps"] if (g["method"], g["hand"]) != (method, options.hand)]
+                record["grasps"].append(entry)
+                write_view_record(root, record)
+                store.sync()
+            done += 1
+    (root / SAMPLE_DONE).write_text(json.dumps({"views": views, "grasps": options is not None}))
+    step("done")
     return store
 
 

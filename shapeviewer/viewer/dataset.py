@@ -38,9 +38,9 @@ import viser
 
 from .. import export
 from ..camera import transform_points
-from ..evaluate import METHODS, SET_TITLES, VIEW_SETS
+from ..evaluate import METHODS, PAPER, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS
 from ..results import HIGHER_IS_BETTER, KINDS, METRIC_TITLES, CompletionResult, GraspSummary, ObjectSummary, \
-    SAMPLE_VIEWS, ResultsStore, ViewInfo, build_sample_store, sample_store_dir
+    ResultsStore, ViewInfo, build_sample_store, sample_store_complete, sample_store_dir
 
 log = logging.getLogger(__name__)
 
@@ -221,7 +221,7 @@ def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selec
     if not objects:
         return "_No object matches._"
     head = (f"{len(objects)} of {total} objects · means of **{method}**  \n"
-            f"| object | split | views | {SHORT.get(metric, metric[:4])} |\n|---|---|---:|---:|")
+            f"| object | split | views | mean {SHORT.get(metric, metric[:4])} |\n|---|---|---:|---:|")
     rows = []
     for o in objects[:INDEX_ROWS]:
         name = f"**{o.name}**" if o.name == selected else o.name
@@ -261,36 +261,48 @@ def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[Completion
     return "\n".join(lines)
 
 
+SET_SHORT = {"training_view": "Train views", "holdout_view": "Holdout views", "holdout_model": "Holdout models"}
+
+
 def summary_markdown(summary: dict, grasps: dict) -> str:
-    """Per-set means (paper Tables I–III, and IV when grasps exist), compact enough for the panel."""
+    """Per-set means (paper Tables I–III, and IV when grasps exist), compact enough for the panel.
+
+    ``summary``: :meth:`ResultsStore.summary`; ``grasps``: :meth:`ResultsStore.grasp_summary`. The
+    last column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
+    """
     out = []
     for number, metric, title in (("I", "jaccard", "Jaccard ↑"), ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
                                   ("III", "geodesic", "Geodesic divergence ↓")):
         digits = 1 if "mm" in metric else 3
-        out += [f"**Table {number}: {title}**", "", "| set | " + " | ".join(SHORT[m] for m in METHODS) + " |",
-                "|---|" + "---:|" * len(METHODS)]
+        out += [f"**Table {number}: {title}**", "",
+                "| set (views) | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
+                "|---|" + "---:|" * (len(METHODS) + 1)]
         for s in VIEW_SETS:
-            cells = [f"{_f(summary[s][m][metric], digits)}" if summary[s][m]["n"] else "–" for m in METHODS]
-            out.append(f"| {SET_TITLES[s]} ({summary[s][METHODS[0]]['n'] + summary[s][METHODS[0]]['failed']}) | "
-                       + " | ".join(cells) + " |")
+            cells = [_f(summary[s][m][metric], digits) if summary[s][m]["n"] else "–" for m in METHODS]
+            views = summary[s][METHODS[0]]["n"] + summary[s][METHODS[0]]["failed"]
+            out.append(f"| {SET_SHORT[s]} ({views}) | " + " | ".join(cells) + f" | {_f(PAPER[metric][s][2], digits)} |")
         out.append("")
     if grasps:
-        out += ["**Table IV: grasps** (joint ° / pose mm / lift)", "", "| set | method | joint | pose | lift |",
-                "|---|---|---:|---:|---:|"]
+        out += ["**Table IV: grasps** (planned on the completion, executed on the truth)", "",
+                "| set | method | joint ° | pose mm | lift | paper ° / mm |", "|---|---|---:|---:|---:|---:|"]
         for s in VIEW_SETS:
             for m in METHODS:
                 c = grasps.get(s, {}).get(m)
-                if c:
-                    out.append(f"| {SET_TITLES[s]} | {SHORT[m]} | {_f(c['joint_error_deg'], 1)} | "
-                               f"{_f(c['pose_error_mm'], 1)} | {_share(c['lift_success'])} |")
+                if not c:
+                    continue
+                col = PAPER_COLUMN.get(m, -1)
+                ref = PAPER_GRASP["joint_error_deg"].get(s)
+                paper = (f"{ref[col]:.2f} / {PAPER_GRASP['pose_error_mm'][s][col]:.1f}" if ref and col >= 0 else "–")
+                out.append(f"| {SET_SHORT[s]} | {SHORT[m]} | {_f(c['joint_error_deg'], 1)} | "
+                           f"{_f(c['pose_error_mm'], 1)} | {_share(c['lift_success'])} | {paper} |")
     else:
         out.append("_Table IV: no grasp results in this store._")
     return "\n".join(out)
 
 
 def bars_png(objects: list[ObjectSummary], metric: str, methods: tuple[str, ...] = METHODS, limit: int = 25,
-             width_px: int = 560) -> bytes | None:
-    """Per-object bars of ``metric`` (one bar per method, worst objects first), as PNG bytes."""
+             width_px: int = 420) -> bytes | None:
+    """Per-object bars of ``metric`` (one bar per method) for the first ``limit`` objects, as PNG bytes."""
     rows = [o for o in objects if any(not math.isnan(o.mean(m, metric)) for m in methods)][:limit]
     if not rows:
         return None
@@ -300,23 +312,23 @@ def bars_png(objects: list[ObjectSummary], metric: str, methods: tuple[str, ...]
     from matplotlib.figure import Figure
 
     dpi = 100
-    fig = Figure(figsize=(width_px / dpi, 0.9 + 0.32 * len(rows) * max(1, len(methods)) / 2), dpi=dpi)
-    ax = fig.add_subplot()
     n = len(methods)
+    fig = Figure(figsize=(width_px / dpi, 1.3 + 0.1 * n * len(rows) + 0.1 * len(rows)), dpi=dpi)
+    ax = fig.add_subplot()
     h = 0.8 / n
     y = np.arange(len(rows))
     for k, m in enumerate(methods):
         vals = [o.mean(m, metric) for o in rows]
         ax.barh(y + (k - (n - 1) / 2) * h, [0 if math.isnan(v) else v for v in vals], height=h,
                 color=np.asarray(COLORS[m]) / 255, label=m)
-    ax.set_yticks(y, [o.name for o in rows], fontsize=7)
+    ax.set_yticks(y, [o.name for o in rows], fontsize=9)
     ax.invert_yaxis()
-    ax.set_xlabel(METRIC_TITLES[metric] + (" (higher is better)" if HIGHER_IS_BETTER[metric] else " (lower is better)"),
-                  fontsize=8)
-    ax.tick_params(axis="x", labelsize=7)
-    ax.legend(fontsize=7, loc="lower right" if HIGHER_IS_BETTER[metric] else "upper right", ncols=2)
+    ax.set_xlabel(METRIC_TITLES[metric] + (", higher is better" if HIGHER_IS_BETTER[metric] else ", lower is better"),
+                  fontsize=9)
+    ax.tick_params(axis="x", labelsize=8)
+    ax.legend(fontsize=8, ncols=2, loc="lower left", bbox_to_anchor=(0.0, 1.0), frameon=False)
     ax.grid(axis="x", alpha=0.3)
-    fig.tight_layout()
+    fig.tight_layout(pad=0.4)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
@@ -365,6 +377,7 @@ class _Controls:
     export_tables: viser.GuiButtonHandle
     summary: viser.GuiMarkdownHandle
     bars_folder: viser.GuiFolderHandle
+    bars_note: viser.GuiMarkdownHandle
     pipeline_note: viser.GuiButtonHandle
 
 
@@ -416,6 +429,10 @@ class DatasetTab:
         self._root = server.scene.add_frame(ROOT, show_axes=False, visible=False)
         self._bars_image = None
         self._bars_key = None
+        self.bars_drawn = None  # the (method, metric, objects) key of the chart on screen
+        self._bars_request = None
+        self._bars_wanted = threading.Event()
+        threading.Thread(target=self._bars_worker, name="dataset-bars", daemon=True).start()
         self.c = self._build_controls(tab, pipeline_tab)
         self._wire()
         self._open(results)
@@ -603,7 +620,7 @@ class DatasetTab:
             root = sample_store_dir(self.weights)
             self.store = ResultsStore(root)
             self._refresh_index()
-            if self.store.counts()["views"] < len(SAMPLE_VIEWS):
+            if not sample_store_complete(root):
                 threading.Thread(target=self._build_sample, args=(root,), name="sample-store", daemon=True).start()
             return
         root = Path(results).expanduser()
@@ -621,8 +638,8 @@ class DatasetTab:
         def progress(done: int, total: int, what: str) -> None:
             self.c.progress.value = 100.0 * done / max(total, 1)
             if what != "done":
-                self.c.status.content = (f"_Building the sample results store ({done}/{total} views): evaluating "
-                                         f"{what} with all four methods..._  \n`{root}`")
+                self.c.status.content = (f"_Building the sample results store (step {done + 1} of {total}): "
+                                         f"{what}..._  \n`{root}`")
                 with self._lock:
                     if done:
                         self.refresh()
@@ -630,8 +647,9 @@ class DatasetTab:
                     n.title = f"Dataset tab: sample results {done}/{total}"
 
         for c in self.server.get_clients().values():
-            notes.append(c.add_notification("Dataset tab: sample results", "Evaluating a few views in the background "
-                                            "(first run only)...", loading=True, with_close_button=True))
+            notes.append(c.add_notification("Dataset tab: sample results", "Evaluating a few views (completions, "
+                                            "then grasps) in the background, first run only...", loading=True,
+                                            with_close_button=True))
         try:
             build_sample_store(root, weights=self.weights, progress=progress)
         except Exception as e:  # keep the viewer alive; say why in the tab
@@ -716,23 +734,48 @@ class DatasetTab:
     def _refresh_summary(self) -> None:
         summary = self.store.summary()
         self.c.summary.content = summary_markdown(summary, self.store.grasp_summary())
-        metric = self.c.metric.value
-        key = (metric, tuple((o.name, o.views) for o in self.objects))
-        if key == self._bars_key:
-            return
-        self._bars_key = key
-        order = sorted(self.objects, key=lambda o: _sort_worst(o, self.c.method.value, metric))
-        png = bars_png(order, metric)
-        if self._bars_image is not None:
-            self._bars_image.remove()
-            self._bars_image = None
-        if png is not None:
-            from PIL import Image
+        method, metric = self.c.method.value, self.c.metric.value
+        key = (method, metric, tuple((o.name, o.views) for o in self.objects))
+        if key != self._bars_key:
+            self._bars_key = key
+            # Drawing the chart takes most of a second: a worker draws the latest request, so that
+            # typing in the search box stays quick.
+            self._bars_request = (key, sorted(self.objects, key=lambda o: _sort_worst(o, method, metric)), method,
+                                  metric)
+            self._bars_wanted.set()
 
+    def _bars_worker(self) -> None:
+        while True:
+            self._bars_wanted.wait()
+            self._bars_wanted.clear()
+            key, objects, method, metric = self._bars_request
+            try:
+                png = bars_png(objects, metric)
+            except Exception:  # a chart must never take the tab down
+                log.exception("drawing the per-object bars failed")
+                continue
+            if self._bars_wanted.is_set():  # a newer request came in meanwhile
+                continue
+            self._show_bars(png, method, metric)
+            self.bars_drawn = key
+
+    def _show_bars(self, png: bytes | None, method: str, metric: str) -> None:
+        from PIL import Image
+
+        if png is None:
+            self.c.bars_note.content = "_No object in the index has results._"
+            if self._bars_image is not None:
+                self._bars_image.visible = False
+            return
+        image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        self.c.bars_note.content = (f"{METRIC_TITLES[metric]}, mean per object, worst {method} first "
+                                    f"(the first 25 objects of the index).")
+        if self._bars_image is None:
             with self.c.bars_folder:
-                self._bars_image = self.server.gui.add_image(
-                    np.asarray(Image.open(io.BytesIO(png)).convert("RGB")),
-                    label=f"{METRIC_TITLES[metric]} per object (worst {self.c.method.value} first)", format="png")
+                self._bars_image = self.server.gui.add_image(image, format="png")
+        else:
+            self._bars_image.image = image
+            self._bars_image.visible = True
 
     # ------------------------------------------------------------------------------------------
     # Drawing a view
@@ -804,6 +847,8 @@ class DatasetTab:
                                           receive_shadow=False, flat_shading=False)
                 nodes.append(node)
             text = TITLES[kind]
+            if kind == "points":
+                text += f"\n{len(items[kind][0]):,} points, seen from the frustum"
             c = by_method.get(kind)
             if c is not None:
                 text += "\n" + completion_label(c)
@@ -958,11 +1003,11 @@ class DatasetTab:
             with gui.add_folder("Summary", expand_by_default=False):
                 summary = gui.add_markdown("")
             with gui.add_folder("Per-object bars", expand_by_default=False) as bars_folder:
-                pass
+                bars_note = gui.add_markdown("_Drawing..._")
         return _Controls(status, progress, show, search, split, with_results, method, metric, order, limit, rng, index,
                          obj, view, step, details, show_grasps, open_pipeline, export_kind, export_format,
                          export_frame, export_mesh, export_grasps, export_view_csv, export_rows_csv, export_tables,
-                         summary, bars_folder, pipeline_note)
+                         summary, bars_folder, bars_note, pipeline_note)
 
     def _wire(self) -> None:
         c = self.c
