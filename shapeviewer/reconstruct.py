@@ -80,6 +80,9 @@ SMOOTH_ITERATIONS = 100       # FISTA steps (see lempitsky_smooth); the paper ra
 # a perfect-CNN box (tests/test_reconstruct.py): mean Hausdorff to the truth 1.89 mm for the
 # fast mesh, 2.27 mm for the paper's steps, 0.98 mm with both additions.
 SURFACE_LEVEL = 0.5
+# Cleanup: closed parts smaller than this share of the largest part's volume are specks (a few
+# stray observed points, a CNN island) and are dropped; larger separate parts are kept.
+MIN_PART_SHARE = 0.1
 
 
 def mean_nn_distance(points: np.ndarray, step: int = DENSITY_SAMPLE_STEP) -> float:
@@ -122,7 +125,7 @@ def upsample_occupancy(occupied: np.ndarray, r: int) -> np.ndarray:
         vote = np.zeros(m, np.float32)
         for (i, j, k), s in corners.items():
             vote += s / (abs(t[a] - i) + abs(t[b] - j) + abs(t[c] - k))
-        fine[:, a, :, b, :, c] = vote > 0
+        fine[:, a, :, b, :, c] = vote >= 0
     return fine.reshape(m[0] * r, m[1] * r, m[2] * r)
 
 
@@ -206,26 +209,61 @@ def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band:
         torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu"))
     # Edge padding by 2 gives the stencil its neighbours at the grid border; pinned like the rest.
     F, lo, hi = (torch.from_numpy(np.pad(a, 2, mode="edge")).to(dev) for a in (F0, lower, upper))
-    previous, gradient, t = F.clone(), torch.empty_like(F), 1.0
-    for _ in range(iterations):
-        t_next = (1.0 + (1.0 + 4.0 * t * t) ** 0.5) / 2.0
-        y = torch.add(F, F - previous, alpha=(t - 1.0) / t_next)
-        previous = F
-        F = y.sub_(_second_difference_gradient(y, gradient), alpha=1.0 / 48.0)
-        F = torch.minimum(F, hi, out=F)
-        F = torch.maximum(F, lo, out=F)
-        t = t_next
+    # One CPU thread: each step is ~20 passes over at most a few 100k voxels, too little work to
+    # share; with two threads on a busy 2-core machine the solve was 5-20x slower (thread hand-offs).
+    threads = torch.get_num_threads()
+    if dev.type == "cpu":
+        torch.set_num_threads(1)
+    try:
+        previous, gradient, t = F.clone(), torch.empty_like(F), 1.0
+        for _ in range(iterations):
+            t_next = (1.0 + (1.0 + 4.0 * t * t) ** 0.5) / 2.0
+            y = torch.add(F, F - previous, alpha=(t - 1.0) / t_next)
+            previous = F
+            F = y.sub_(_second_difference_gradient(y, gradient), alpha=1.0 / 48.0)
+            F = torch.minimum(F, hi, out=F)
+            F = torch.maximum(F, lo, out=F)
+            t = t_next
+    finally:
+        torch.set_num_threads(threads)
     return F[2:-2, 2:-2, 2:-2].cpu().numpy()
 
 
-def _carve_seen_free_space(occ: np.ndarray, observed_idx: np.ndarray) -> np.ndarray:
-    """Empty every voxel in front of (smaller z than) the nearest observed point of its z column.
+def _carve_seen_free_space(occ: np.ndarray, origin: np.ndarray, leaf: float,
+                           observed_points_cam: np.ndarray) -> np.ndarray:
+    """Empty every voxel the camera saw through: more than one voxel in front of the nearest
+    observed point along its camera ray.
 
-    z is the camera's viewing direction, as in the paper's gap filling along z columns.
+    Rays are binned by direction (x/z, y/z) at one voxel's width at the points' median depth.
+    Voxels whose ray bin holds no observed point are kept (the camera saw nothing there).
+    ``occ`` is a grid of voxel size ``leaf`` whose voxel 0 starts at ``origin`` (camera metres).
     """
-    first = np.full(occ.shape[:2], occ.shape[2])
-    np.minimum.at(first, (observed_idx[:, 0], observed_idx[:, 1]), observed_idx[:, 2])
-    return occ & (np.arange(occ.shape[2])[None, None, :] >= first[..., None])
+    pts = observed_points_cam
+    step = leaf / float(np.median(pts[:, 2]))
+    rays = np.floor(pts[:, :2] / pts[:, 2:3] / step).astype(np.int64)
+    lo = rays.min(0)
+    rays -= lo
+    nearest = np.full(rays.max(0) + 1, np.inf)
+    np.minimum.at(nearest, (rays[:, 0], rays[:, 1]), pts[:, 2])
+    idx = np.argwhere(occ)
+    centres = origin + (idx + 0.5) * leaf
+    bins = np.floor(centres[:, :2] / centres[:, 2:3] / step).astype(np.int64) - lo
+    inside = ((bins >= 0) & (bins < nearest.shape)).all(axis=1)
+    seen = np.full(len(idx), np.inf)
+    seen[inside] = nearest[bins[inside, 0], bins[inside, 1]]
+    free = centres[:, 2] < seen - leaf
+    out = occ.copy()
+    out[tuple(idx[free].T)] = False
+    return out
+
+
+def _drop_specks(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` without the connected parts smaller than ``MIN_PART_SHARE`` of the largest."""
+    parts = mesh.split(only_watertight=False)
+    if len(parts) < 2:
+        return mesh
+    volumes = np.abs([p.volume for p in parts])
+    return trimesh.util.concatenate([p for p, v in zip(parts, volumes) if v >= MIN_PART_SHARE * volumes.max()])
 
 
 def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_cam: np.ndarray,
@@ -271,7 +309,11 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     # spacing. The larger of the two keeps the up-sampled CNN points (voxel_size / r apart) free of
     # gaps at the merge resolution and bounds the grid for very dense clouds.
     leaf = max(MERGE_LEAF_FACTOR * obs_nn, frame.voxel_size / r)
-    origin = merged.min(0) - MERGE_PADDING * leaf
+    # Anchor the grid so that the up-sampled points' lattice sits at voxel centres: with a leaf of
+    # exactly their spacing, points on voxel faces would fall on either side by rounding, leaving
+    # some voxels empty and others doubly hit (holes through thin parts).
+    anchor = up_pts[0] if len(up_pts) else merged[0]
+    origin = anchor - (np.ceil((anchor - merged.min(0)) / leaf) + MERGE_PADDING + 0.5) * leaf
     shape = np.ceil((merged.max(0) + MERGE_PADDING * leaf - origin) / leaf).astype(int) + 1
     if np.prod(shape) > 400**3:
         raise ValueError(f"the merged grid would be {tuple(shape)} voxels: the observed cloud is too dense "
@@ -280,7 +322,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     obs_idx, cnn_idx = idx[:len(obs)], idx[len(obs):]
     cnn = np.zeros(shape, bool)
     cnn[cnn_idx[:, 0], cnn_idx[:, 1], cnn_idx[:, 2]] = True
-    grid = _carve_seen_free_space(cnn, obs_idx)
+    grid = _carve_seen_free_space(cnn, origin, leaf, obs)
     grid[obs_idx[:, 0], obs_idx[:, 1], obs_idx[:, 2]] = True
     t["merge"] = time.perf_counter() - t0
 
@@ -295,12 +337,14 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     t0 = time.perf_counter()
     if not (F > SURFACE_LEVEL).any():
         raise EmptyCompletionError("the merged volume is thinner than one voxel everywhere: no surface")
-    verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE), level=SURFACE_LEVEL)
+    verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE),
+                                                level=SURFACE_LEVEL + LEVEL_NUDGE)
     # Padded index i is voxel i - 1, whose centre is at origin + (i - 1 + 0.5) * leaf.
     mesh = trimesh.Trimesh(origin + (verts - 0.5) * leaf, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.merge_vertices()
     mesh.remove_unreferenced_vertices()
+    mesh = _drop_specks(mesh)
     if mesh.volume < 0:
         mesh.invert()
     t["marching_cubes"] = time.perf_counter() - t0
