@@ -39,8 +39,9 @@ def grid_mesh(values: np.ndarray, frame: GridFrame, level: float) -> trimesh.Tri
     padded = np.pad(np.asarray(values, dtype=np.float32), 1, constant_values=pad_value)
     verts, faces, _, _ = measure.marching_cubes(padded, level=level + LEVEL_NUDGE)
     # Padded index i is voxel i - 1, whose centre sits at grid coordinate (i - 1) + 0.5.
-    mesh = trimesh.Trimesh(frame.to_metres(verts - 0.5), faces, process=True)
-    mesh.remove_unreferenced_vertices()
+    # process=False: marching cubes already shares every vertex; trimesh's merging of vertices
+    # closer than its tolerance joins distinct sheets that nearly touch (non-manifold edges).
+    mesh = trimesh.Trimesh(frame.to_metres(verts - 0.5), faces, process=False)
     if mesh.volume < 0:
         mesh.invert()
     return mesh
@@ -275,8 +276,8 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
 
     Steps (keys of ``timings``): ``density`` (ratio r), ``upsample`` (corner vote), ``merge``
     (re-voxelize at max(2 x observed spacing, voxel / r), carve the seen free space), ``fill_gaps``
-    (along z), ``smooth`` (Lempitsky), ``marching_cubes`` (F = 0.5, cleanup: degenerate faces,
-    duplicate vertices, specks). See the constants above for where this departs from the paper.
+    (along z), ``smooth`` (Lempitsky), ``marching_cubes`` (at F = 0.5, then specks dropped).
+    The constants above say where this departs from the paper and why.
 
     Args:
         probabilities: (40, 40, 40) CNN output, [x, y, z], in ``frame``.
@@ -352,10 +353,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE),
                                                 level=SURFACE_LEVEL + LEVEL_NUDGE)
     # Padded index i is voxel i - 1, whose centre is at origin + (i - 1 + 0.5) * leaf.
-    mesh = trimesh.Trimesh(origin + (verts - 0.5) * leaf, faces, process=True)
-    mesh.update_faces(mesh.nondegenerate_faces())
-    mesh.merge_vertices()
-    mesh.remove_unreferenced_vertices()
+    mesh = trimesh.Trimesh(origin + (verts - 0.5) * leaf, faces, process=False)  # see grid_mesh
     mesh = _drop_specks(mesh)
     if mesh.volume < 0:
         mesh.invert()
