@@ -426,6 +426,7 @@ class ResultsStore:
             db.executemany("INSERT INTO grasps VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", grasps.values())
             db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
                        (rel, st.st_mtime_ns, st.st_size, name, view))
+            self._bump(db)
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
@@ -434,6 +435,17 @@ class ResultsStore:
             report.updated += 1
         else:  # new, or readable for the first time
             report.added += 1
+
+    @staticmethod
+    def _bump(db: sqlite3.Connection) -> None:
+        db.execute("INSERT INTO meta VALUES ('generation', '1') ON CONFLICT(key) DO UPDATE SET "
+                   "value = CAST(value AS INTEGER) + 1")
+
+    def generation(self) -> int:
+        """A number that changes whenever any store on this folder (any thread or process) changed the
+        views: readers compare it to know when to re-read."""
+        rows = self._read("SELECT value FROM meta WHERE key='generation'")
+        return int(rows[0][0]) if rows else 0
 
     @staticmethod
     def _delete_view(db: sqlite3.Connection, name: str, view: int) -> None:
@@ -447,6 +459,7 @@ class ResultsStore:
             if row and row[0] is not None:
                 self._delete_view(db, row[0], row[1])
             db.execute("DELETE FROM files WHERE path=?", (rel,))
+            self._bump(db)
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")

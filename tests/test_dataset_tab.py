@@ -121,6 +121,7 @@ def test_layout_faces_the_unseen_side_towards_the_camera():
 def test_grasps_are_drawn_planned_and_executed(app):
     d = app.dataset
     name, view = VIEWS[0]
+    d.c.show_grasps.value = True
     assert d.select(name, view)
     drawn = d.drawn
     for m in ("Ours-fast", "Partial"):
@@ -128,12 +129,11 @@ def test_grasps_are_drawn_planned_and_executed(app):
             h = drawn[f"{ROOT}/grasp_{m}_{tag}"]
             centre = np.asarray(h.vertices).mean(0)
             assert abs(centre[0] - d.shown.layout.columns[m][0]) < d.shown.layout.spacing / 2, (m, tag)
-        assert "pose 5.0 mm" in drawn[f"{ROOT}/label_{m}"].text
+        assert "2.9° · 5.0 mm" in drawn[f"{ROOT}/label_{m}"].text
     assert f"{ROOT}/grasp_Mirror_planned" not in drawn
-    assert "| Ours-fast (barrett) | 2 |" in d.c.details.content
+    assert "| Fast | 2 | 2.9 | 5.0 | 50% |" in d.c.details.content
     d.c.show_grasps.value = False
     assert d.select(name, view) and f"{ROOT}/grasp_Partial_planned" not in d.drawn
-    d.c.show_grasps.value = True
 
 
 def test_step_through_views_and_objects(app):

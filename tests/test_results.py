@@ -175,9 +175,15 @@ def test_sync_is_incremental_and_forgets_deleted_views(folder):
     path.unlink()
     assert store.sync().removed == 1
     assert store.views(name) == [] and store.counts()["views"] == 3
-    # The index is a cache: a new store on the same folder (another process) reads it without syncing.
+    # The index is a cache: a new store on the same folder (another process) reads it without syncing,
+    # and sees through the generation number when the other one changed it.
     again = ResultsStore(root, sync=False)
     assert again.counts()["views"] == 3
+    seen = again.generation()
+    write_view(root, "ycb/025_mug", 500)
+    assert again.generation() == seen
+    store.sync()
+    assert again.generation() != seen and again.counts()["views"] == 4
 
 
 def test_parse_rejects_a_view_file_without_rows(tmp_path):

@@ -158,6 +158,7 @@ class ViewerApp:
             with self._job_slot(None) as ok:
                 assert ok  # nothing else can run yet
                 self.completer = load_completer(weights)
+                self.dataset.start_background(self.completer)
                 c = self.completer
                 self.panel.model.content = P.model_markdown(c.arch, Path(c.source).name, c.trained, c.meta)
                 curves = training_curves(c)
@@ -186,6 +187,8 @@ class ViewerApp:
 
     def stop(self) -> None:
         self.grasps.shutdown()
+        if self.dataset is not None:
+            self.dataset.shutdown()
         self.server.stop()
 
     def load_default(self, seed: int, client: viser.ClientHandle | None = None) -> bool:

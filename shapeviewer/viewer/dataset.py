@@ -62,8 +62,8 @@ TITLES = {"truth": "Ground truth", "points": "Partial view", "Partial": "Partial
 # Partial and Mirror keep the pipeline tab's baseline colours; ours are warm, the truth neutral.
 COLORS = {"truth": (150, 175, 150), "points": (40, 110, 220), "Partial": (160, 160, 160), "Mirror": (110, 150, 215),
           "Ours-fast": (240, 150, 60), "Ours-detailed": (205, 95, 45)}
-PLANNED_HAND = ((70, 140, 255), 0.45)  # colour, opacity
-EXECUTED_HAND = ((250, 90, 60), 0.7)
+PLANNED_HAND = ((70, 140, 255), 0.3)  # colour, opacity: the completion stays visible through the hand
+EXECUTED_HAND = ((250, 90, 60), 0.5)
 SPLITS = {"all objects": None, "training models": "train", "holdout models": "holdout_model"}
 ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most views": "views"}
 INDEX_ROWS = 12  # rows of the index table in the panel
@@ -71,6 +71,7 @@ INDEX_ROWS = 12  # rows of the index table in the panel
 SHORT = {"Partial": "Part.", "Mirror": "Mirr.", "Ours-fast": "Fast", "Ours-detailed": "Det.", "jaccard": "J",
          "hausdorff_mean_mm": "H mm", "geodesic": "G"}
 SLIDER = {"jaccard": (0.0, 1.0, 0.01), "hausdorff_mean_mm": (0.0, 100.0, 0.5), "geodesic": (0.0, 1.0, 0.01)}
+POLL_SECONDS = 5.0  # how often the tab looks for new view files
 DEFAULT = "default"  # ``results=DEFAULT``: the sample store, built in the background when missing
 
 
@@ -200,19 +201,20 @@ def _share(v: float) -> str:
     return f"{100 * v:.0f}%" if 0 <= v <= 1 else f"{v:g}"
 
 
+# Labels sit above their column, which is about 25 characters wide on a laptop screen: short lines.
 def completion_label(c: CompletionResult) -> str:
-    """The label line of a completion: Jaccard, mean Hausdorff (mm), geodesic divergence."""
+    """A completion's label lines: Jaccard and geodesic divergence, then the mean Hausdorff (mm)."""
     if not c.ok:
-        return f"failed: {c.error[:60]}"
-    return f"J {_f(c.jaccard, 2)} · H {_f(c.hausdorff_mean_mm, 1)} mm · G {_f(c.geodesic, 2)}"
+        return "failed:\n" + c.error[:24]
+    return f"J {_f(c.jaccard, 2)} · G {_f(c.geodesic, 2)}\nH {_f(c.hausdorff_mean_mm, 1)} mm"
 
 
 def grasp_label(g: GraspSummary) -> str:
-    """The label line of a grasp summary: planned vs executed errors and the lift result."""
+    """A grasp summary's label lines: planned vs executed joint (deg) and pose (mm) errors, lift successes."""
     if g.error:
-        return f"grasps failed: {g.error[:50]}"
-    return (f"{g.hand}: joint {_f(g.joint_error_deg, 1)}° · pose {_f(g.pose_error_mm, 1)} mm · "
-            f"lift {_share(g.lift_success)}")
+        return "grasps failed"
+    return (f"grasp {_f(g.joint_error_deg, 1)}° · {_f(g.pose_error_mm, 1)} mm\n"
+            f"lifted {_share(g.lift_success)} of {g.n}")
 
 
 def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selected: str | None,
@@ -221,7 +223,7 @@ def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selec
     if not objects:
         return "_No object matches._"
     head = (f"{len(objects)} of {total} objects · means of **{method}**  \n"
-            f"| object | split | views | mean {SHORT.get(metric, metric[:4])} |\n|---|---|---:|---:|")
+            f"| object | split | views | {SHORT.get(metric, metric[:4])} |\n|---|---|:---:|---:|")
     rows = []
     for o in objects[:INDEX_ROWS]:
         name = f"**{o.name}**" if o.name == selected else o.name
@@ -249,12 +251,16 @@ def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[Completion
     if failed:
         lines += ["", *(f"_{e}_  " for e in failed)]
     if grasps:
-        lines += ["", "| grasps on | n | joint ° | pose mm | lift |", "|---|---:|---:|---:|---:|"]
+        hands = sorted({g.hand for g in grasps})
+        lines += ["", f"**Grasps** ({', '.join(hands)}): planned on the completion, executed on the truth; "
+                  "errors planned vs executed, share lifted", "",
+                  "| on | n | joint° | mm | lift |", "|---|---:|---:|---:|---:|"]
         for g in grasps:
+            on = SHORT.get(g.method, g.method) + (f" ({g.hand})" if len(hands) > 1 else "")
             if g.error:
-                lines.append(f"| {g.method} ({g.hand}) | failed | | | |")
+                lines.append(f"| {on} | failed | | | |")
             else:
-                lines.append(f"| {g.method} ({g.hand}) | {g.n} | {_f(g.joint_error_deg, 1)} | {_f(g.pose_error_mm, 1)} | "
+                lines.append(f"| {on} | {g.n} | {_f(g.joint_error_deg, 1)} | {_f(g.pose_error_mm, 1)} | "
                              f"{_share(g.lift_success)} |")
     else:
         lines += ["", "_No grasp results for this view._"]
@@ -432,10 +438,19 @@ class DatasetTab:
         self.bars_drawn = None  # the (method, metric, objects) key of the chart on screen
         self._bars_request = None
         self._bars_wanted = threading.Event()
+        self._closed = threading.Event()  # set by shutdown(): background threads stop touching the GUI
+        self._build_notes: dict[int, viser.NotificationHandle] = {}  # client id -> progress notification
+        self._build_step = ""
+        self._sample_to_build: Path | None = None
+        self._generation = -1  # the store generation the index shows
+        server.on_client_connect(self._add_build_note)
+        server.on_client_disconnect(lambda client: self._build_notes.pop(client.client_id, None))
         threading.Thread(target=self._bars_worker, name="dataset-bars", daemon=True).start()
         self.c = self._build_controls(tab, pipeline_tab)
         self._wire()
         self._open(results)
+        if self.store is not None:
+            threading.Thread(target=self._poll, name="dataset-poll", daemon=True).start()
 
     # ------------------------------------------------------------------------------------------
     # Public API
@@ -598,15 +613,24 @@ class DatasetTab:
         return out
 
     def refresh(self) -> None:
-        """Re-read the store (new views of a running evaluation) and redraw the index."""
+        """Re-read the store (new views of a running evaluation) and redraw the index if it changed."""
         with self._lock:
             if self.store is None:
                 return
             report = self.store.sync()
-            if report.changed or not self.objects:
+            generation = self.store.generation()  # also changed by other stores on the folder
+            if generation != self._generation:
                 self._refresh_index()
-            if report.skipped:
+            elif report.skipped:
                 self.c.status.content = self._status_text()
+
+    def _poll(self) -> None:
+        """Pick up views that a running evaluation (or the sample build) adds, every few seconds."""
+        while not self._closed.wait(POLL_SECONDS):
+            try:
+                self.refresh()
+            except Exception:  # an unreadable folder for a moment: try again next time
+                log.warning("refreshing the results store failed", exc_info=True)
 
     # ------------------------------------------------------------------------------------------
     # Opening a store
@@ -621,7 +645,7 @@ class DatasetTab:
             self.store = ResultsStore(root)
             self._refresh_index()
             if not sample_store_complete(root):
-                threading.Thread(target=self._build_sample, args=(root,), name="sample-store", daemon=True).start()
+                self._sample_to_build = root  # started by start_background() once the app has its CNN
             return
         root = Path(results).expanduser()
         if not root.is_dir():
@@ -629,29 +653,46 @@ class DatasetTab:
         self.store = ResultsStore(root)
         self._refresh_index()
 
-    def _build_sample(self, root: Path) -> None:
-        """Evaluate the sample views in the background; the index fills in as views finish."""
+    def start_background(self, completer) -> None:
+        """Start building the sample store, if it is wanted and missing, with the app's CNN.
+
+        Sharing the app's :class:`~shapeviewer.model.Completer` (inference only) also keeps two
+        threads from loading models at once: TorchScript parses Python source, and CPython 3.11's
+        ``ast.parse`` is not safe in two threads at the same time.
+        """
+        root, self._sample_to_build = self._sample_to_build, None
+        if root is not None and not self._closed.is_set():
+            threading.Thread(target=self._build_sample, args=(root, completer), name="sample-store",
+                             daemon=True).start()
+
+    def _build_sample(self, root: Path, completer) -> None:
+        """Evaluate the sample views in the background; the index fills in as views finish.
+
+        Every browser (also those connecting later) sees a progress notification until it is done.
+        """
         self.building = True
         self.c.progress.visible = True
-        notes = []
+        self._build_step = "starting"
 
         def progress(done: int, total: int, what: str) -> None:
+            if self._closed.is_set():
+                raise _Stopped
             self.c.progress.value = 100.0 * done / max(total, 1)
-            if what != "done":
-                self.c.status.content = (f"_Building the sample results store (step {done + 1} of {total}): "
-                                         f"{what}..._  \n`{root}`")
-                with self._lock:
-                    if done:
-                        self.refresh()
-                for n in notes:
-                    n.title = f"Dataset tab: sample results {done}/{total}"
+            if what == "done":
+                return
+            self._build_step = f"step {done + 1} of {total}: {what}"
+            self.c.status.content = f"_Building the sample results store ({self._build_step})..._  \n`{root}`"
+            for note in list(self._build_notes.values()):
+                note.body = self._build_note_body()
+            if done:
+                self.refresh()
 
-        for c in self.server.get_clients().values():
-            notes.append(c.add_notification("Dataset tab: sample results", "Evaluating a few views (completions, "
-                                            "then grasps) in the background, first run only...", loading=True,
-                                            with_close_button=True))
+        for client in self.server.get_clients().values():
+            self._add_build_note(client)
         try:
-            build_sample_store(root, weights=self.weights, progress=progress)
+            build_sample_store(root, weights=self.weights, progress=progress, completer=completer)
+        except _Stopped:
+            return
         except Exception as e:  # keep the viewer alive; say why in the tab
             log.exception("building the sample store failed")
             self.last_error = f"sample store: {e}"
@@ -659,11 +700,23 @@ class DatasetTab:
             return
         finally:
             self.building = False
-            self.c.progress.visible = False
-            for n in notes:
-                n.remove()
+            if not self._closed.is_set():
+                self.c.progress.visible = False
+                for note in list(self._build_notes.values()):
+                    note.remove()
+            self._build_notes.clear()
         self.refresh()
         self.c.status.content = self._status_text()
+
+    def _build_note_body(self) -> str:
+        return (f"The Dataset tab is evaluating a few sample views in the background (first run only): "
+                f"{self._build_step}. Views appear in the tab as they finish.")
+
+    def _add_build_note(self, client: viser.ClientHandle) -> None:
+        if self.building and client.client_id not in self._build_notes:
+            self._build_notes[client.client_id] = client.add_notification(
+                "Dataset tab: building sample results", self._build_note_body(), loading=True,
+                with_close_button=True)
 
     # ------------------------------------------------------------------------------------------
     # Index
@@ -680,6 +733,7 @@ class DatasetTab:
             if self.store is None:
                 return
             f = self._filters()
+            self._generation = self.store.generation()
             self.objects = self.store.objects(**f)
             self.total_objects = len(self.store.objects(with_results=f["with_results"]))
             selected = self.shown.info.object if self.shown else None
@@ -744,17 +798,24 @@ class DatasetTab:
                                   metric)
             self._bars_wanted.set()
 
+    def shutdown(self) -> None:
+        """Stop the background work (the server is going away)."""
+        self._closed.set()
+        self._bars_wanted.set()
+
     def _bars_worker(self) -> None:
-        while True:
+        while not self._closed.is_set():
             self._bars_wanted.wait()
             self._bars_wanted.clear()
+            if self._closed.is_set():
+                return
             key, objects, method, metric = self._bars_request
             try:
                 png = bars_png(objects, metric)
             except Exception:  # a chart must never take the tab down
                 log.exception("drawing the per-object bars failed")
                 continue
-            if self._bars_wanted.is_set():  # a newer request came in meanwhile
+            if self._bars_wanted.is_set() or self._closed.is_set():  # a newer request came in, or closing
                 continue
             self._show_bars(png, method, metric)
             self.bars_drawn = key
@@ -983,8 +1044,10 @@ class DatasetTab:
                 step = gui.add_button_group("Step", ("◀ object", "◀ view", "view ▶", "object ▶"),
                                             hint="Keys: N / P next / previous view, Shift+N / Shift+P object")
                 details = gui.add_markdown("_Choose an object._")
-                show_grasps = gui.add_checkbox("Show grasps", True,
-                                               hint="Best planned grasp (blue) and its execution on the true object (red)")
+                # Off by default: a hand is as large as the object and hides the shapes being compared.
+                show_grasps = gui.add_checkbox("Show best grasp", False,
+                                               hint="Hands of each completion's best planned grasp (blue) and of its "
+                                                    "execution on the true object (red)")
                 open_pipeline = gui.add_button("Open in pipeline", icon=viser.Icon.PLAYER_PLAY,
                                                hint="Send this view's partial points to the Pipeline tab to complete "
                                                     "and grasp them yourself")
@@ -1091,6 +1154,10 @@ class DatasetTab:
             return
         if client is not None:
             client.send_file_download(name, data, save_immediately=True)
+
+
+class _Stopped(Exception):
+    """Raised in the sample build's progress callback when the viewer stops."""
 
 
 def _sort_worst(o: ObjectSummary, method: str, metric: str) -> tuple:
