@@ -220,3 +220,10 @@ def test_bad_results_folder_is_a_clear_error(tmp_path):
     pts = np.random.default_rng(0).normal([0.0, 0.0, 1.0], 0.02, (500, 3))
     with pytest.raises(FileNotFoundError, match="results folder not found"):
         ViewerApp(port=free_port(), cloud=Capture(pts, source="blob"), results=tmp_path / "missing")
+
+
+def test_serve_with_a_missing_results_folder_says_so(tmp_path, capsys):
+    from shapeviewer.cli import main
+
+    assert main(["serve", "--port", str(free_port()), "--results", str(tmp_path / "missing")]) == 2
+    assert "results folder not found" in capsys.readouterr().err

@@ -9,6 +9,7 @@ Scene nodes: every pipeline stage is a layer, a frame ``/<layer key>`` (see :dat
 whose children are that stage's nodes, e.g. ``/segments/seg_3``, ``/cnn_input/seg_3``,
 ``/fast_mesh/seg_3``, ``/detailed_mesh/seg_3``, ``/mirror_mesh/seg_3``; the layer checkbox toggles
 the frame's visibility. ``/sensor`` is the camera frustum and ``/table`` the table-plane hint.
+The Dataset tab (:mod:`.dataset`) draws under ``/dataset`` and hides all of these while it is shown.
 
 :class:`ViewerApp` can be driven without a browser (tests call :meth:`ViewerApp.complete`,
 :meth:`ViewerApp.pick`, ...); GUI callbacks call the same methods. Plain ``def`` callbacks run in

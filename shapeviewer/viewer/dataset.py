@@ -213,8 +213,9 @@ def grasp_label(g: GraspSummary) -> str:
     """A grasp summary's label lines: planned vs executed joint (deg) and pose (mm) errors, lift successes."""
     if g.error:
         return "grasps failed"
-    return (f"grasp {_f(g.joint_error_deg, 1)}° · {_f(g.pose_error_mm, 1)} mm\n"
-            f"lifted {_share(g.lift_success)} of {g.n}")
+    lifted = (f"lifted {round(g.lift_success * g.n)}/{g.n}" if g.n and 0 <= g.lift_success <= 1
+              else f"lift {_share(g.lift_success)}")
+    return f"grasp {_f(g.joint_error_deg, 1)}° · {_f(g.pose_error_mm, 1)} mm\n{lifted}"
 
 
 def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selected: str | None,
@@ -445,12 +446,15 @@ class DatasetTab:
         self._generation = -1  # the store generation the index shows
         server.on_client_connect(self._add_build_note)
         server.on_client_disconnect(lambda client: self._build_notes.pop(client.client_id, None))
-        threading.Thread(target=self._bars_worker, name="dataset-bars", daemon=True).start()
         self.c = self._build_controls(tab, pipeline_tab)
         self._wire()
         self._open(results)
+        # Started once the store is open (a bad --results folder raises above and leaves no thread).
+        self._threads = [threading.Thread(target=self._bars_worker, name="dataset-bars", daemon=True)]
         if self.store is not None:
-            threading.Thread(target=self._poll, name="dataset-poll", daemon=True).start()
+            self._threads.append(threading.Thread(target=self._poll, name="dataset-poll", daemon=True))
+        for t in self._threads:
+            t.start()
 
     # ------------------------------------------------------------------------------------------
     # Public API
@@ -618,6 +622,8 @@ class DatasetTab:
             if self.store is None:
                 return
             report = self.store.sync()
+            if self._closed.is_set():  # the server stopped meanwhile: no GUI to update
+                return
             generation = self.store.generation()  # also changed by other stores on the folder
             if generation != self._generation:
                 self._refresh_index()
@@ -799,9 +805,12 @@ class DatasetTab:
             self._bars_wanted.set()
 
     def shutdown(self) -> None:
-        """Stop the background work (the server is going away)."""
+        """Stop the background work before the server goes away (waits for a chart or index update
+        in progress; the sample build stops at its next step)."""
         self._closed.set()
         self._bars_wanted.set()
+        for t in self._threads:
+            t.join(timeout=10.0)
 
     def _bars_worker(self) -> None:
         while not self._closed.is_set():
