@@ -296,6 +296,7 @@ class ResultsStore:
         self.root = Path(root).expanduser().resolve()
         self.root.mkdir(parents=True, exist_ok=True)
         self.index_path = self.root / INDEX_NAME
+        self._local = threading.local()
         self._sync_lock = threading.Lock()  # one sync at a time per process (SQLite serialises processes)
         self._catalogue_done = False
         with self._connect() as db:
@@ -320,11 +321,12 @@ class ResultsStore:
         return db
 
     def _read(self, sql: str, args: Iterable = ()) -> list[tuple]:
-        db = self._connect()
-        try:
-            return db.execute(sql, tuple(args)).fetchall()
-        finally:
-            db.close()
+        # One read connection per thread (sqlite3 connections stay in their thread); in autocommit
+        # mode every query is its own WAL read transaction, so it sees the latest committed sync.
+        db = getattr(self._local, "db", None)
+        if db is None:
+            db = self._local.db = self._connect()
+        return db.execute(sql, tuple(args)).fetchall()
 
     # ------------------------------------------------------------------------------------------
     # Writing the index
@@ -645,19 +647,11 @@ class ResultsStore:
 
     def load_mesh(self, name: str, view: int, kind: str):
         """A view's mesh ``kind`` (truth or a method), full resolution, camera optical frame, metres."""
-        import trimesh
-
-        mesh = trimesh.load(self.mesh_file(name, view, kind), file_type="ply", force="mesh", process=False)
-        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-            raise ValueError(f"{name} view {view}: the {kind} file has no triangles")
-        return mesh
+        return read_mesh(self.mesh_file(name, view, kind))
 
     def load_points(self, name: str, view: int) -> np.ndarray:
         """The partial view (N, 3), camera optical frame, metres."""
-        import trimesh
-
-        cloud = trimesh.load(self.mesh_file(name, view, "points"), file_type="ply", process=False)
-        return np.asarray(cloud.vertices, dtype=np.float64).reshape(-1, 3)
+        return read_points(self.mesh_file(name, view, "points"))
 
     def T_cam_obj(self, name: str, view: int) -> np.ndarray:
         """4x4 pose of the object frame (bounding-box centre, catalogue axes) in the camera frame.
@@ -725,6 +719,27 @@ class ResultsStore:
         w.writeheader()
         w.writerows(self.rows(names))
         return buf.getvalue()
+
+
+def read_mesh(path: Path):
+    """A triangle mesh from a PLY file, as written (no merging or repair; a few times quicker than
+    ``trimesh.load``, which goes through a scene)."""
+    import trimesh
+    from trimesh.exchange.ply import load_ply
+
+    with open(path, "rb") as f:
+        data = load_ply(f)
+    if data.get("faces") is None or len(data["faces"]) == 0:
+        raise ValueError(f"{path.name}: no triangles")
+    return trimesh.Trimesh(vertices=data["vertices"], faces=data["faces"], process=False)
+
+
+def read_points(path: Path) -> np.ndarray:
+    """(N, 3) float64 vertices of a PLY point cloud."""
+    from trimesh.exchange.ply import load_ply
+
+    with open(path, "rb") as f:
+        return np.asarray(load_ply(f)["vertices"], dtype=np.float64).reshape(-1, 3)
 
 
 def _fmt(v: float, digits: int) -> str:

@@ -40,13 +40,14 @@ from .. import export
 from ..camera import transform_points
 from ..evaluate import METHODS, PAPER, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS
 from ..results import HIGHER_IS_BETTER, KINDS, METRIC_TITLES, CompletionResult, GraspSummary, ObjectSummary, \
-    ResultsStore, ViewInfo, build_sample_store, sample_store_complete, sample_store_dir
+    ResultsStore, ViewInfo, build_sample_store, read_mesh, read_points, sample_store_complete, sample_store_dir
 
 log = logging.getLogger(__name__)
 
 ROOT = "/dataset"
 # Display budget: meshes with more triangles are decimated for display (exports use the files).
 DISPLAY_MAX_FACES = 20_000
+DISPLAY_CACHE = 96  # display meshes kept in memory (about 16 views; a few hundred kB each)
 POINT_SIZE = 0.003  # metres; viser draws points about twice this wide
 # Column spacing / largest object footprint: room for the labels between the items.
 SPACING_FACTOR = 1.3
@@ -268,40 +269,45 @@ def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[Completion
     return "\n".join(lines)
 
 
-SET_SHORT = {"training_view": "Train views", "holdout_view": "Holdout views", "holdout_model": "Holdout models"}
+SET_SHORT = {"training_view": "train", "holdout_view": "h. view", "holdout_model": "h. model"}
 
 
 def summary_markdown(summary: dict, grasps: dict) -> str:
     """Per-set means (paper Tables I–III, and IV when grasps exist), compact enough for the panel.
 
     ``summary``: :meth:`ResultsStore.summary`; ``grasps``: :meth:`ResultsStore.grasp_summary`. The
-    last column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
+    "paper" column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
     """
-    out = []
+    counts = [summary[s][METHODS[0]]["n"] + summary[s][METHODS[0]]["failed"] for s in VIEW_SETS]
+    out = [f"Views per set: training views {counts[0]}, holdout views (h. view) {counts[1]}, holdout models "
+           f"(h. model) {counts[2]}. Means over the views where the method succeeded.", ""]
     for number, metric, title in (("I", "jaccard", "Jaccard ↑"), ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
                                   ("III", "geodesic", "Geodesic divergence ↓")):
         digits = 1 if "mm" in metric else 3
         out += [f"**Table {number}: {title}**", "",
-                "| set (views) | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
+                "| set | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
                 "|---|" + "---:|" * (len(METHODS) + 1)]
         for s in VIEW_SETS:
             cells = [_f(summary[s][m][metric], digits) if summary[s][m]["n"] else "–" for m in METHODS]
-            views = summary[s][METHODS[0]]["n"] + summary[s][METHODS[0]]["failed"]
-            out.append(f"| {SET_SHORT[s]} ({views}) | " + " | ".join(cells) + f" | {_f(PAPER[metric][s][2], digits)} |")
+            out.append(f"| {SET_SHORT[s]} | " + " | ".join(cells) + f" | {_f(PAPER[metric][s][2], digits)} |")
         out.append("")
     if grasps:
-        out += ["**Table IV: grasps** (planned on the completion, executed on the truth)", "",
-                "| set | method | joint ° | pose mm | lift | paper ° / mm |", "|---|---|---:|---:|---:|---:|"]
+        out += ["**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
+                "errors (mean), share lifted; paper: joint ° / pose mm", "",
+                "| method | joint ° | pose mm | lift | paper |", "|---|---:|---:|:---:|---:|"]
         for s in VIEW_SETS:
+            rows = []
             for m in METHODS:
                 c = grasps.get(s, {}).get(m)
                 if not c:
                     continue
                 col = PAPER_COLUMN.get(m, -1)
                 ref = PAPER_GRASP["joint_error_deg"].get(s)
-                paper = (f"{ref[col]:.2f} / {PAPER_GRASP['pose_error_mm'][s][col]:.1f}" if ref and col >= 0 else "–")
-                out.append(f"| {SET_SHORT[s]} | {SHORT[m]} | {_f(c['joint_error_deg'], 1)} | "
-                           f"{_f(c['pose_error_mm'], 1)} | {_share(c['lift_success'])} | {paper} |")
+                paper = (f"{ref[col]:.1f} / {PAPER_GRASP['pose_error_mm'][s][col]:.0f}" if ref and col >= 0 else "–")
+                rows.append(f"| {SHORT[m]} | {_f(c['joint_error_deg'], 1)} | {_f(c['pose_error_mm'], 1)} | "
+                            f"{_share(c['lift_success'])} | {paper} |")
+            if rows:
+                out += [f"| _{SET_TITLES[s]}_ | | | | |", *rows]
     else:
         out.append("_Table IV: no grasp results in this store._")
     return "\n".join(out)
@@ -850,21 +856,22 @@ class DatasetTab:
     # ------------------------------------------------------------------------------------------
     # Drawing a view
 
-    def _display_mesh(self, kind: str, info: ViewInfo):
-        """(display vertices, faces) of a mesh (camera frame, decimated) or (points, None), cached by file."""
-        path = self.store.mesh_file(info.object, info.view, kind)
+    def _display_mesh(self, rel: str, points: bool):
+        """(vertices, faces) of a mesh file (camera frame, decimated for display), or (points, None);
+        cached by path and modification time."""
+        path = self.store.path(rel)
         key = (str(path), path.stat().st_mtime_ns)
         hit = self._display_cache.get(key)
         if hit is not None:
             self._display_cache.move_to_end(key)
             return hit
-        if kind == "points":
-            value = (self.store.load_points(info.object, info.view).astype(np.float32), None)
+        if points:
+            value = (read_points(path).astype(np.float32), None)
         else:
-            m = decimate(self.store.load_mesh(info.object, info.view, kind))
+            m = decimate(read_mesh(path))
             value = (np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))
         self._display_cache[key] = value
-        while len(self._display_cache) > 64:
+        while len(self._display_cache) > DISPLAY_CACHE:
             self._display_cache.popitem(last=False)
         return value
 
@@ -875,14 +882,11 @@ class DatasetTab:
         completions = self.store.completions(name, info.view)
         grasps = self.store.grasps(name, info.view)
         by_method = {c.method: c for c in completions}
+        files = {"truth": info.truth, "points": info.points, **{m: c.mesh for m, c in by_method.items()}}
         items: dict[str, tuple] = {}
         for kind in KINDS:
-            if kind not in ("truth", "points") and (kind not in by_method or not by_method[kind].mesh):
-                continue
-            try:
-                items[kind] = self._display_mesh(kind, info)
-            except KeyError:  # no such file for this view
-                continue
+            if files.get(kind):
+                items[kind] = self._display_mesh(files[kind], kind == "points")
         if "truth" not in items:
             raise ValueError("the view has no ground-truth mesh file")
         kinds = tuple(k for k in KINDS if k in items or k in by_method)
