@@ -712,6 +712,19 @@ class ResultsStore:
                         c.mesh or "", *gcols])
         return buf.getvalue()
 
+    def objects_csv(self, objects: Iterable[ObjectSummary]) -> str:
+        """Objects (e.g. :meth:`objects`' result) as CSV text: name, split, source, size (m), views,
+        and each method's mean metrics and failures."""
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["object", "split", "source", "extent_x_m", "extent_y_m", "extent_z_m", "views",
+                    *(f"{m}_{k}" for m in METHODS for k in (*METRICS, "seconds", "failed"))])
+        for o in objects:
+            w.writerow([o.name, o.split, o.source, *o.extents, o.views,
+                        *(v for m in METHODS for v in (*(o.mean(m, k) for k in (*METRICS, "seconds")),
+                                                       o.failed.get(m, 0)))])
+        return buf.getvalue()
+
     def rows_csv(self, names: Iterable[str] | None = None) -> str:
         """Every completion row (of ``names``, default all objects) as CSV text, the evaluation's columns."""
         buf = io.StringIO()

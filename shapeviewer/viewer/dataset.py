@@ -224,16 +224,17 @@ def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selec
     """The first rows of the filtered index as a markdown table (the selected object in bold)."""
     if not objects:
         return "_No object matches._"
-    head = (f"{len(objects)} of {total} objects · means of **{method}**  \n"
-            f"| object | split | views | {SHORT.get(metric, metric[:4])} |\n|---|---|:---:|---:|")
+    head = (f"{len(objects)} of {total} objects · size = longest side · means of **{method}**  \n"
+            f"| object | split | cm | views | {SHORT.get(metric, metric[:4])} |\n|---|---|---:|:---:|---:|")
     rows = []
     for o in objects[:INDEX_ROWS]:
         name = f"**{o.name}**" if o.name == selected else o.name
         split = "holdout" if o.split == "holdout_model" else "train"
-        rows.append(f"| {name} | {split} | {o.views} | {_f(o.mean(method, metric), 1 if 'mm' in metric else 2)} |")
-    more = [f"| _… {len(objects) - INDEX_ROWS} more_ | | | |"] if len(objects) > INDEX_ROWS else []
+        size = "?" if any(math.isnan(x) for x in o.extents) else f"{100 * max(o.extents):.0f}"
+        rows.append(f"| {name} | {split} | {size} | {o.views} | "
+                    f"{_f(o.mean(method, metric), 1 if 'mm' in metric else 2)} |")
+    more = [f"| _… {len(objects) - INDEX_ROWS} more_ | | | | |"] if len(objects) > INDEX_ROWS else []
     return "\n".join([head, *rows, *more])
-
 
 
 def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[CompletionResult],
@@ -386,6 +387,7 @@ class _Controls:
     export_mesh: viser.GuiButtonHandle
     export_grasps: viser.GuiButtonHandle
     export_view_csv: viser.GuiButtonHandle
+    export_index_csv: viser.GuiButtonHandle
     export_rows_csv: viser.GuiButtonHandle
     export_tables: viser.GuiButtonHandle
     summary: viser.GuiMarkdownHandle
@@ -566,8 +568,9 @@ class DatasetTab:
 
         Args:
             what: ``mesh`` (``kind``: truth, points or a method), ``grasps`` (the grasps JSON of
-                method ``kind``), ``view_csv`` (per-method metrics of the view), ``rows_csv`` (every
-                row of the objects in the current index) or ``tables`` (Tables I-IV, markdown).
+                method ``kind``), ``view_csv`` (per-method metrics of the view), ``index_csv`` (the
+                objects of the current index), ``rows_csv`` (every row of those objects' views) or
+                ``tables`` (Tables I-IV, markdown).
             mesh_format: ``ply``, ``obj``, ``stl`` or ``glb`` (meshes; points are always PLY).
             frame: ``camera`` (the view's camera optical frame, as stored) or ``object`` (the
                 object's frame: catalogue axes, bounding-box centre at the origin).
@@ -577,6 +580,8 @@ class DatasetTab:
         """
         if self.store is None:
             raise ValueError("No results store is open.")
+        if what == "index_csv":
+            return "results_index.csv", self.store.objects_csv(self.objects).encode()
         if what == "rows_csv":
             names = [o.name for o in self.objects if o.views]
             return "results_rows.csv", self.store.rows_csv(names).encode()
@@ -1073,7 +1078,10 @@ class DatasetTab:
                 export_mesh = gui.add_button("Mesh (full resolution)", icon=viser.Icon.DOWNLOAD)
                 export_grasps = gui.add_button("Grasps of this method (JSON)", icon=viser.Icon.DOWNLOAD)
                 export_view_csv = gui.add_button("View metrics (CSV)", icon=viser.Icon.DOWNLOAD)
-                export_rows_csv = gui.add_button("Index rows (CSV)", icon=viser.Icon.DOWNLOAD,
+                export_index_csv = gui.add_button("Index (CSV)", icon=viser.Icon.DOWNLOAD,
+                                                  hint="The objects of the index: split, source, size, views, "
+                                                       "mean metrics of every method")
+                export_rows_csv = gui.add_button("Metrics of the index's views (CSV)", icon=viser.Icon.DOWNLOAD,
                                                  hint="Every view of the objects in the index, all methods")
                 export_tables = gui.add_button("Tables I-IV (markdown)", icon=viser.Icon.DOWNLOAD)
             with gui.add_folder("Summary", expand_by_default=False):
@@ -1082,7 +1090,8 @@ class DatasetTab:
                 bars_note = gui.add_markdown("_Drawing..._")
         return _Controls(status, progress, show, search, split, with_results, method, metric, order, limit, rng, index,
                          obj, view, step, details, show_grasps, open_pipeline, export_kind, export_format,
-                         export_frame, export_mesh, export_grasps, export_view_csv, export_rows_csv, export_tables,
+                         export_frame, export_mesh, export_grasps, export_view_csv, export_index_csv, export_rows_csv,
+                         export_tables,
                          summary, bars_folder, bars_note, pipeline_note)
 
     def _wire(self) -> None:
@@ -1147,7 +1156,7 @@ class DatasetTab:
                 self.select(self.shown.info.object, self.shown.info.view, event.client)
 
         downloads = ((c.export_mesh, "mesh"), (c.export_grasps, "grasps"), (c.export_view_csv, "view_csv"),
-                     (c.export_rows_csv, "rows_csv"), (c.export_tables, "tables"))
+                     (c.export_index_csv, "index_csv"), (c.export_rows_csv, "rows_csv"), (c.export_tables, "tables"))
         for button, what in downloads:
             button.on_click(lambda event, what=what: self._download(event.client, what))
 
