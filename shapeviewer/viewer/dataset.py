@@ -1069,7 +1069,7 @@ class DatasetTab:
                 open_pipeline = gui.add_button("Open in pipeline", icon=viser.Icon.PLAYER_PLAY,
                                                hint="Send this view's partial points to the Pipeline tab to complete "
                                                     "and grasp them yourself")
-            with gui.add_folder("Export", expand_by_default=False):
+            with gui.add_folder("Export"):
                 export_kind = gui.add_dropdown("Mesh", KINDS, initial_value="Ours-fast")
                 export_format = gui.add_dropdown("Format", export.MESH_FORMATS)
                 export_frame = gui.add_dropdown("Frame", ("camera", "object"),
