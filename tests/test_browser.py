@@ -119,3 +119,46 @@ def test_click_segment_completes_it(tmp_path):
                 browser.close()
     finally:
         app.stop()
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian chromium not installed at /usr/bin/chromium "
+                                                   "(apt-get install chromium)")
+@pytest.mark.skipif(sync_playwright is None, reason="playwright (python) is not installed (pip install playwright)")
+def test_plan_grasps_button_draws_hands(tmp_path):
+    from shapeviewer.viewer import ViewerApp
+
+    app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
+    try:
+        sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
+        assert app.complete(sid) is not None and app.selected == sid
+        app.grasps.panel.count.value = 3  # a quick plan: the test is about the button, not the planner
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1280, "height": 800})
+                page.goto(app.url)
+                page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
+                wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
+                button = page.get_by_role("button", name="Plan grasps")
+                button.wait_for(state="visible", timeout=30_000)
+                # A software-rendered WebGL canvas on a busy machine starves the animation frames that
+                # Playwright's "stable" check waits for: click without the check (force), and fall back
+                # to the same DOM click event if even that cannot get through.
+                try:
+                    button.click(force=True, timeout=30_000)
+                except Exception:  # noqa: BLE001
+                    button.dispatch_event("click")
+                job = wait_until(lambda: app.grasps.job, 20, "the click to start planning")
+                assert job.wait(180), "planning did not finish"
+                assert job.error is None and sid in app.grasps.sets
+                grasps = app.grasps.sets[sid].grasps
+                assert grasps, "no grasp found"
+                for k in range(len(grasps)):
+                    assert app.server.scene.get_handle_by_name(f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
+                # The browser shows the best grasp's description.
+                page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
+                page.screenshot(path=str(tmp_path / "grasps.png"))
+            finally:
+                browser.close()
+    finally:
+        app.stop()

@@ -59,6 +59,21 @@ def test_epsilon_colours_run_from_red_to_green_and_grey_without_closure():
     assert colours[2] == colours[3] == G.NO_CLOSURE_COLOR
 
 
+@pytest.mark.parametrize("hand_name", ["barrett", "panda"])
+def test_hand_skeleton_follows_the_fingers(hand_name):
+    from shapeviewer.grasp.hands import get_hand
+
+    hand = get_hand(hand_name)
+    open_, closed = (hand.joints_from_dofs(d) for d in (hand.dof_open, hand.dof_closed))
+    a, b = G.hand_skeleton(hand, open_), G.hand_skeleton(hand, closed)
+    assert a.shape == b.shape and a.shape[1:] == (2, 3)
+    # The wrist goes back from the palm face (against the approach); the fingers reach forward.
+    assert np.allclose(a[0, 0], 0) and a[0, 1] @ hand.approach < -0.03
+    assert a[:, :, 2].max() > 0.04
+    # Closing moves the fingertips towards the palm axis.
+    assert np.linalg.norm(b[:, 1, :2], axis=1).sum() < np.linalg.norm(a[:, 1, :2], axis=1).sum()
+
+
 def test_segments_of_the_default_scene_map_to_their_true_objects(app):
     capture = app.scene.capture
     seen = set()
@@ -89,19 +104,23 @@ def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
         assert frame is not None, k
         assert np.allclose(frame.position, g.T_world_palm[:3, 3])
         for link in ("palm", "f1_proximal", "f2_distal", "f3_distal"):
-            assert node(app, f"/grasps/seg_{sid}/g{k}/{link}") is not None, (k, link)
+            assert node(app, f"/grasps/seg_{sid}/g{k}/hand/{link}") is not None, (k, link)
+        assert node(app, f"/grasps/seg_{sid}/g{k}/skeleton") is not None
         # The palm is at the object, not somewhere else in the scene.
         gap = np.min(np.linalg.norm(planned.mesh_world.vertices - g.position, axis=1))
         assert gap < 0.1, (k, gap)
     # Coloured by quality: the best grasp's fingers are the colour epsilon_colors gives it.
-    first = node(app, f"/grasps/seg_{sid}/g0/f1_proximal")
-    assert tuple(first.color) == G.epsilon_colors([g.epsilon for g in planned.grasps])[0]
+    colours = G.epsilon_colors([g.epsilon for g in planned.grasps])
+    for k in range(len(planned.grasps)):
+        assert tuple(node(app, f"/grasps/seg_{sid}/g{k}/hand/f1_proximal").color) == colours[k]
+    # The selected (best) grasp is a solid hand, the others stick figures.
+    assert node(app, f"/grasps/seg_{sid}/g0/hand").visible and not node(app, f"/grasps/seg_{sid}/g0/skeleton").visible
     # Listed, the best one selected and described, the layer on.
     panel = app.grasps.panel
     assert len(panel.grasp.options) == len(planned.grasps)
     assert app.grasps.current == sid and app.grasps.selected == 0
     assert panel.grasp.value == panel.grasp.options[0]
-    assert f"ε **{planned.grasps[0].epsilon:.4f}**" in panel.info.content
+    assert f"ε **{planned.grasps[0].epsilon:.4f}" in panel.info.content
     assert "f1_proximal" in panel.info.content and "°" in panel.info.content
     assert app.panel.layers["grasps"].value and node(app, "/grasps").visible
     assert not panel.plan.disabled and panel.cancel.disabled and not panel.progress.visible
@@ -112,8 +131,8 @@ def test_selection_highlights_one_grasp(app, planned):
     if len(planned.grasps) < 2:
         pytest.skip("needs two grasps")
     app.grasps.select(1)
-    assert node(app, f"/grasps/seg_{sid}/g1/palm").opacity is None
-    assert node(app, f"/grasps/seg_{sid}/g0/palm").opacity == G.DIM_OPACITY
+    assert node(app, f"/grasps/seg_{sid}/g1/hand").visible and not node(app, f"/grasps/seg_{sid}/g1/skeleton").visible
+    assert not node(app, f"/grasps/seg_{sid}/g0/hand").visible and node(app, f"/grasps/seg_{sid}/g0/skeleton").visible
     assert "**Grasp #2**" in app.grasps.panel.info.content
     app.grasps.panel.show_all.value = False
     try:
@@ -167,7 +186,10 @@ def test_execute_on_ground_truth(app, planned):
     truth = node(app, f"/grasps/seg_{sid}/truth")
     assert truth is not None and truth.opacity == G.TRUTH_OPACITY
     assert node(app, f"/grasps/seg_{sid}/exec_g0").visible is True
-    assert node(app, f"/grasps/seg_{sid}/exec_g0/f1_proximal").color == G.EXECUTED_COLOR
+    # The planned hand steps back to a stick figure; the layers that would hide the object go off.
+    assert node(app, f"/grasps/seg_{sid}/g0/skeleton").visible and not node(app, f"/grasps/seg_{sid}/g0/hand").visible
+    assert not app.panel.layers["fast_mesh"].value and not app.panel.layers["cnn_input"].value
+    assert node(app, f"/grasps/seg_{sid}/exec_g0/hand/f1_proximal").color == G.EXECUTED_COLOR
     info = app.grasps.panel.info.content
     assert f"joint error **{e.joint_error:.2f}°**" in info and f"pose error **{e.pose_error:.1f} mm**" in info
     assert ("lifted" in info) or ("dropped" in info)

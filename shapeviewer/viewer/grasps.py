@@ -55,11 +55,13 @@ NO_GRASP = "(none)"
 DEFAULT_GRASPS = 20
 MAX_GRASPS = 50
 NO_CLOSURE_COLOR = (150, 150, 150)  # grasps without force closure (epsilon <= 0)
+EPSILON_STOPS = (0.0, 0.5, 1.0)  # epsilon / the best epsilon ...
+EPSILON_COLORS = ((215, 40, 30), (235, 160, 0), (20, 160, 60))  # ... red, amber, green
 EXECUTED_COLOR = (40, 110, 235)
 EXECUTED_OPACITY = 0.6
-TRUTH_COLOR = (120, 200, 140)
-TRUTH_OPACITY = 0.35
-DIM_OPACITY = 0.22  # grasps other than the selected one, when all are shown
+TRUTH_COLOR = (250, 200, 60)  # gold: unlike any segment colour
+TRUTH_OPACITY = 0.5
+SKELETON_THICKNESS = 0.003  # m: the stick figures of the grasps other than the selected one
 PALM_SHADE = 0.7  # the palm a little darker than the fingers, so the hand's shape reads at a glance
 MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share of its labelled points are
 
@@ -68,16 +70,15 @@ MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share 
 # Plain values (no viser): colours, ground truth, panel text.
 
 def epsilon_colors(epsilons: Sequence[float]) -> list[tuple[int, int, int]]:
-    """RGB of each grasp by its epsilon: red (near 0) to green (the best of ``epsilons``); grey
-    without force closure (epsilon <= 0). Relative to the best so that one object's grasps spread
-    over the whole scale whatever its size."""
-    from matplotlib import colormaps
-
+    """RGB of each grasp by its epsilon: red (near 0) through amber to green (the best of
+    ``epsilons``); grey without force closure (epsilon <= 0). Relative to the best so that one
+    object's grasps spread over the whole scale whatever its size. (Saturated stops, not
+    matplotlib's RdYlGn, whose pale middle vanishes against the light table.)"""
     eps = np.asarray(epsilons, dtype=np.float64)
     best = float(eps.max()) if len(eps) and eps.max() > 0 else 1.0
-    cmap = colormaps["RdYlGn"]
-    return [NO_CLOSURE_COLOR if e <= 0 else tuple(int(255 * v) for v in cmap(0.1 + 0.8 * min(e / best, 1.0))[:3])
-            for e in eps]
+    x = np.clip(eps / best, 0.0, 1.0)
+    rgb = np.stack([np.interp(x, EPSILON_STOPS, [c[i] for c in EPSILON_COLORS]) for i in range(3)], axis=-1)
+    return [NO_CLOSURE_COLOR if e <= 0 else tuple(int(round(v)) for v in c) for e, c in zip(eps, rgb)]
 
 
 def ground_truth_object(capture: Capture, segment: Segment) -> tuple[int, float] | None:
@@ -102,10 +103,43 @@ def object_mesh_world(obj: SceneObject) -> trimesh.Trimesh:
                            process=False)
 
 
+def hand_skeleton(hand: Hand, joints: Sequence[float]) -> np.ndarray:
+    """A stick figure of the hand at ``joints``: (N, 2, 3) line segments in the palm frame (metres).
+
+    The wrist axis (from the palm face back to the end of the palm, along -approach), a segment
+    from each link's parent frame to its own, and from each fingertip link to the centre of its
+    far end. Twenty of them show where the grasps are without hiding the object the way twenty
+    solid (or translucent) hands do.
+    """
+    poses = hand.link_poses(joints)
+
+    def visual_points(link: str) -> np.ndarray:
+        pts = [g.mesh().vertices @ (poses[link] @ g.T_link_geom)[:3, :3].T + (poses[link] @ g.T_link_geom)[:3, 3]
+               for g in hand.model.visuals.get(link, ())]
+        return np.vstack(pts) if pts else poses[link][None, :3, 3]
+
+    palm = visual_points(hand.palm_link)
+    approach = np.asarray(hand.approach, float)
+    segments = [(np.zeros(3), approach * float(np.min(palm @ approach)))]
+    parents = {j.child: j.parent for j in hand.model.joints}
+    for link, parent in parents.items():
+        origin = poses[link][:3, 3]
+        segments.append((poses[parent][:3, 3], origin))
+        if link not in parents.values():  # a fingertip link: on to the middle of its far end
+            pts = visual_points(link)
+            d = np.linalg.norm(pts - origin, axis=1)
+            segments.append((origin, pts[d >= 0.9 * d.max()].mean(axis=0)))
+    return np.asarray(segments, dtype=np.float64)
+
+
 def _joint_value(hand: Hand, name: str, value: float) -> str:
     """A joint value for people: degrees for revolute joints, millimetres for prismatic ones."""
     kind = next(j.kind for j in hand.model.joints if j.name == name)
     return f"{1000 * value:.1f} mm" if kind == "prismatic" else f"{math.degrees(value):.1f}°"
+
+
+def _epsilon_text(epsilon: float) -> str:
+    return f"{epsilon:.4f}" if epsilon > 0 else f"{epsilon:.4f} (no force closure)"
 
 
 def _lift_text(e: ExecutionResult) -> str:
@@ -243,11 +277,13 @@ def build_grasp_panel(gui: viser.GuiApi, order: float | None = None) -> GraspPan
 
 @dataclass(eq=False)
 class _HandNodes:
-    """One drawn hand: its palm frame and link meshes, which grasp (index in its segment's list)
-    it shows, and whether as planned or as executed on the true object."""
+    """One drawn hand: its palm frame, the frame holding its link meshes (``solid``), its stick
+    figure (planned grasps only), which grasp (index in its segment's list) it shows, and whether
+    as planned or as executed on the true object."""
 
     frame: viser.SceneNodeHandle
-    links: list[viser.MeshHandle]
+    solid: viser.SceneNodeHandle
+    skeleton: viser.SceneNodeHandle | None
     index: int
     executed: bool
 
@@ -487,6 +523,9 @@ class GraspController:
             s.truth_name, s.truth_world = name, truth_world
             self._draw_executions(s, picked)
             self._show_info()
+        # The opaque completion and its input voxels would hide the (translucent) true object.
+        for layer in (f"{s.method}_mesh", "cnn_input"):
+            self.app.panel.layers[layer].value = False
         lifted = [r.lift.success for r in results if r.lift is not None]
         body = (f"Segment {sid} on {name}: joint error {np.mean([r.joint_error for r in results]):.1f}°, "
                 f"pose error {np.mean([r.pose_error for r in results]):.1f} mm"
@@ -546,25 +585,29 @@ class GraspController:
 
     def _draw_hand(self, sid: int, k: int, executed: bool, hand: Hand, T_world_palm: np.ndarray,
                    joints: dict[str, float], color: tuple[int, int, int], opacity: float | None) -> None:
-        """Grasp ``k``'s hand at ``T_world_palm`` (world) with ``joints``: a palm frame and one mesh per
-        visual link (replacing an earlier drawing of the same hand)."""
+        """Grasp ``k``'s hand at ``T_world_palm`` (world) with ``joints`` (replacing an earlier drawing
+        of it): a palm frame, under it ``hand/<link>`` meshes in the palm frame and, for a planned
+        grasp, the ``skeleton`` stick figure; both in ``color``."""
         key = f"exec_g{k}" if executed else f"g{k}"
         old = self._hands.pop((sid, key), None)
         if old is not None:
             old.frame.remove()
         name = f"/grasps/seg_{sid}/{key}"
-        frame = self.server.scene.add_frame(name, show_axes=False, position=T_world_palm[:3, 3],
-                                            wxyz=viser.transforms.SO3.from_matrix(T_world_palm[:3, :3]).wxyz)
+        scene = self.server.scene
+        frame = scene.add_frame(name, show_axes=False, position=T_world_palm[:3, 3],
+                                wxyz=viser.transforms.SO3.from_matrix(T_world_palm[:3, :3]).wxyz)
+        solid = scene.add_frame(f"{name}/hand", show_axes=False)
+        q = [joints[n] for n in hand.joint_names]
         parts = [(link, i) for link, geoms in hand.model.visuals.items() for i in range(len(geoms))]
-        links = []
-        for (link, i), (mesh, T) in zip(parts, hand_meshes(hand, [joints[n] for n in hand.joint_names])):
+        for (link, i), (mesh, T) in zip(parts, hand_meshes(hand, q)):
             rgb = shade(np.asarray(color), PALM_SHADE) if link == hand.palm_link else tuple(color)
-            h = self.server.scene.add_mesh_simple(
-                f"{name}/{link}" + (f"_{i}" if i else ""), np.asarray(mesh.vertices, np.float32),
-                np.asarray(mesh.faces, np.uint32), color=rgb, opacity=opacity, position=T[:3, 3],
-                wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz, cast_shadow=False, receive_shadow=False)
-            links.append(h)
-        self._hands[(sid, key)] = _HandNodes(frame, links, k, executed)
+            scene.add_mesh_simple(f"{name}/hand/{link}" + (f"_{i}" if i else ""), np.asarray(mesh.vertices, np.float32),
+                                  np.asarray(mesh.faces, np.uint32), color=rgb, opacity=opacity, position=T[:3, 3],
+                                  wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz, cast_shadow=False,
+                                  receive_shadow=False)
+        skeleton = None if executed else scene.add_line_segments(
+            f"{name}/skeleton", hand_skeleton(hand, q).astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS)
+        self._hands[(sid, key)] = _HandNodes(frame, solid, skeleton, k, executed)
 
     def _draw_segment(self, s: SegmentGrasps) -> None:
         """(Re)draw a segment's planned hands, and its executions if any."""
@@ -593,16 +636,17 @@ class GraspController:
         self._restyle()
 
     def _restyle(self) -> None:
-        """Selected grasp solid; the others dimmed (Show all) or hidden; executions only when selected."""
+        """The selected grasp as a solid hand; the others as stick figures (Show all) or hidden; an
+        execution only with its grasp selected, and then the planned hand as a stick figure so that
+        it does not hide the executed one (which is often where the planned one was)."""
         show_all = bool(self.panel.show_all.value)
         for (sid, _key), nodes in self._hands.items():
             chosen = sid == self.current and nodes.index == self.selected
-            if nodes.executed:
-                nodes.frame.visible = chosen
-                continue
-            nodes.frame.visible = chosen or show_all
-            for h in nodes.links:
-                h.opacity = None if chosen or self.selected is None else DIM_OPACITY
+            nodes.frame.visible = chosen or (show_all and not nodes.executed)
+            solid = chosen and (nodes.executed or (sid, f"exec_g{nodes.index}") not in self._hands)
+            nodes.solid.visible = solid
+            if nodes.skeleton is not None:
+                nodes.skeleton.visible = not solid
 
     def _refresh_panel(self) -> None:
         """Grasp dropdown, styles and info for the listed segment."""
@@ -654,7 +698,7 @@ class GraspController:
         g, e, hand = s.grasps[k], s.executions[k], get_hand(s.hand)
         x, y, z = 1000 * g.position
         a = g.approach
-        text += (f"\n\n**Grasp #{k + 1}** · ε **{g.epsilon:.4f}** · volume {g.volume:.4f} · "
+        text += (f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
                  f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
                  f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})\n\n")
         header = "| joint | planned |" + (" executed |\n|---|---:|---:|" if e is not None else "\n|---|---:|")
@@ -662,9 +706,11 @@ class GraspController:
                 + (f" {_joint_value(hand, n, e.joints[n])} |" if e is not None else "") for n in hand.joint_names]
         text += header + "\n" + "\n".join(rows)
         if e is not None:
-            text += (f"\n\n**On the ground truth** ({s.truth_name}): ε {e.epsilon:.4f} · joint error "
+            text += (f"\n\n**On the ground truth** ({s.truth_name}): ε {_epsilon_text(e.epsilon)} · joint error "
                      f"**{e.joint_error:.2f}°** · pose error **{e.pose_error:.1f} mm** · {_lift_text(e)}"
-                     + ("" if e.start_clear else " · the backed-off start was in collision"))
+                     + ("" if e.start_clear else " · the backed-off start was in collision")
+                     + "  \n_Blue: the hand as executed; gold: the true object; the stick figure: the planned "
+                       "grasp. (The completion's mesh and CNN input layers were switched off to show the object.)_")
         return text
 
     # ------------------------------------------------------------------------------------------
