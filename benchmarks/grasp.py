@@ -9,6 +9,12 @@ the decomposition of each new completion as the app would; the true mesh's decom
 by every method's grasps of an object, is made before execution is timed.
 
     python benchmarks/grasp.py [--objects ycb/006_mustard_bottle ...] [--hand barrett] [--grasps 20]
+    python benchmarks/grasp.py --scene 0          # the viewer's case: the default scene's objects
+
+With ``--scene SEED`` the objects are instead those of the viewer's default scene: each segment
+that shows one true object is completed by the shipped CNN (its fast mesh, mapped to the world
+frame with the scene's camera pose, exactly what the viewer's "Plan grasps" gives the planner),
+and the grasps are executed on that true object as placed in the scene.
 
 Wall-clock times depend on what else runs; "cpu s" is the planning process's own CPU time (its
 threads included, the V-HACD child process not), a load-independent lower bound.
@@ -36,16 +42,60 @@ def completed(mesh_world: trimesh.Trimesh) -> trimesh.Trimesh:
     return fast_mesh(solid_grid(mesh_world, frame).astype(np.float32), frame)
 
 
+Case = tuple[str, trimesh.Trimesh, trimesh.Trimesh]  # name, true mesh (world), mesh planned on (world)
+
+
+def catalogue_cases(names: list[str]) -> list[Case]:
+    """Each catalogue object standing on the table and its perfect-CNN completion (world frame)."""
+    from shapeviewer.dataset import load_mesh
+
+    cases = []
+    for name in names:
+        truth = load_mesh(name)
+        truth.apply_translation([0.0, 0.0, -truth.bounds[0, 2]])
+        mesh = completed(truth)
+        mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+        cases.append((name, truth, mesh))
+    return cases
+
+
+def scene_cases(seed: int) -> list[Case]:
+    """The default scene's objects as the viewer plans on them: per segment showing one true object,
+    the CNN's fast mesh in the world frame (the scene's ``T_world_cam``), and that object's true mesh."""
+    from shapeviewer.model import load_completer
+    from shapeviewer.pipeline import complete_points
+    from shapeviewer.scene import default_scene
+    from shapeviewer.segment import segment_scene
+    from shapeviewer.viewer.grasps import ground_truth_object, object_mesh_world
+
+    capture = default_scene(seed)
+    segments = segment_scene(capture).segments
+    done = complete_points([s.points_cam for s in segments], load_completer(), [s.id for s in segments])
+    cases = []
+    for seg, c in zip(segments, done):
+        match = ground_truth_object(capture, seg)
+        if match is None or c.fast_mesh is None:
+            continue
+        obj = capture.objects[match[0]]
+        mesh = c.fast_mesh.copy()
+        mesh.apply_transform(capture.T_world_cam)
+        cases.append((f"seg {seg.id} {obj.name}", object_mesh_world(obj), mesh))
+    return cases
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="+", default=list(DEFAULT_OBJECTS))
     ap.add_argument("--hand", default="barrett")
     ap.add_argument("--grasps", type=int, default=20)
     ap.add_argument("--lifts", type=int, default=5, help="lift tests per object (each with a shake)")
+    ap.add_argument("--scene", type=int, default=None, metavar="SEED",
+                    help="plan on the CNN completions of this default scene's objects instead of --objects")
     args = ap.parse_args()
+    cases = catalogue_cases(args.objects) if args.scene is None else scene_cases(args.scene)
+    # Only now: the meshes and scene come from the usual cache, every V-HACD of a plan is new.
     os.environ["SHAPEVIEWER_CACHE"] = tempfile.mkdtemp(prefix="grasp-bench-")
 
-    from shapeviewer.dataset import load_mesh
     from shapeviewer.grasp.execute import execute_grasps, lift_test
     from shapeviewer.grasp.plan import _hand_samples, plan
     from shapeviewer.grasp.world import convex_decomposition
@@ -58,11 +108,7 @@ def main() -> None:
               f" {'pose mm':>8s} {'lift s':>7s} {'lifted':>6s}")
     print(header)
     rows = []
-    for name in args.objects:
-        truth = load_mesh(name)
-        truth.apply_translation([0.0, 0.0, -truth.bounds[0, 2]])
-        mesh = completed(truth)
-        mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    for name, truth, mesh in cases:
         cpu = time.process_time()
         result = plan(mesh, hand=args.hand, n_grasps=args.grasps, seed=0)
         cpu = time.process_time() - cpu

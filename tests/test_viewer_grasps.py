@@ -146,7 +146,9 @@ def test_selection_highlights_one_grasp(app, planned):
 
 def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, planned):
     sid = largest_segments(app)[1]
-    job = app.plan_grasps(sid, "barrett", "fast", N_GRASPS, wait=False)
+    assert sid not in app.completions
+    # On a mesh the segment lacks: the job makes it first (completing the segment on the way).
+    job = app.plan_grasps(sid, "barrett", "partial", N_GRASPS, wait=False)
     assert job is not None
     try:
         # Wait until the planner itself runs (its progress bar moves), not just the mesh stage.
@@ -165,6 +167,7 @@ def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, pla
         job.cancel()
         job.wait(60)
     assert job.cancelled and job.result is None and job.error is None
+    assert app.completions[sid].partial_mesh is not None and node(app, f"/partial_mesh/seg_{sid}") is not None
     assert sid not in app.grasps.sets and node(app, f"/grasps/seg_{sid}") is None
     assert not app.grasps.panel.plan.disabled and app.grasps.panel.cancel.disabled
     assert not app.cancel_grasps()  # nothing runs any more

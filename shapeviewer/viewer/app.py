@@ -10,11 +10,13 @@ whose children are that stage's nodes, e.g. ``/segments/seg_3``, ``/cnn_input/se
 ``/fast_mesh/seg_3``, ``/detailed_mesh/seg_3``, ``/mirror_mesh/seg_3``; the layer checkbox toggles
 the frame's visibility. ``/sensor`` is the camera frustum and ``/table`` the table-plane hint.
 The Dataset tab (:mod:`.dataset`) draws under ``/dataset`` and hides all of these while it is shown.
+Grasps (:mod:`.grasps`, step 6) are hands under ``/grasps/seg_3/g0``, ...
 
 :class:`ViewerApp` can be driven without a browser (tests call :meth:`ViewerApp.complete`,
 :meth:`ViewerApp.pick`, ...); GUI callbacks call the same methods. Plain ``def`` callbacks run in
 viser's thread pool, so one lock serialises jobs (loading, completing, detailed and baseline
-meshes) and the job buttons are disabled while one runs.
+meshes) and the job buttons are disabled while one runs. Grasp planning and execution run in their
+own background thread outside that lock (:class:`~.grasps.GraspController`, one grasp job at a time).
 """
 
 from __future__ import annotations
@@ -282,7 +284,8 @@ class ViewerApp:
         return self.grasps.cancel()
 
     def execute_grasps(self, segment_id: int | None = None, indices: list[int] | None = None,
-                       client: viser.ClientHandle | None = None, wait: bool = True, lift: bool = True) -> GraspJob | None:
+                       client: viser.ClientHandle | None = None, wait: bool = True,
+                       lift: bool = True) -> GraspJob | None:
         """Execute a segment's grasps ``indices`` (None: all) on its true object (synthetic scenes);
         ``job.result``: the :class:`~shapeviewer.grasp.execute.ExecutionResult` list."""
         return self.grasps.execute(self.grasps.current if segment_id is None else segment_id, indices, client,

@@ -407,7 +407,8 @@ class GraspController:
                 job.result = work(job)
             except GraspJobError as e:
                 job.error = str(e)
-                self._notify(client, "Grasps", str(e), "red")
+                if not job.cancel_event.is_set():  # after Cancel (or a new scene) it is no news
+                    self._notify(client, "Grasps", str(e), "red")
             except Exception as e:  # a bad mesh, pybullet, a vanished client...: keep the app alive
                 log.exception("grasp %s job on segment %s failed", kind, segment_id)
                 job.error = f"{type(e).__name__}: {e}"
@@ -640,13 +641,14 @@ class GraspController:
         execution only with its grasp selected, and then the planned hand as a stick figure so that
         it does not hide the executed one (which is often where the planned one was)."""
         show_all = bool(self.panel.show_all.value)
-        for (sid, _key), nodes in self._hands.items():
-            chosen = sid == self.current and nodes.index == self.selected
-            nodes.frame.visible = chosen or (show_all and not nodes.executed)
-            solid = chosen and (nodes.executed or (sid, f"exec_g{nodes.index}") not in self._hands)
-            nodes.solid.visible = solid
-            if nodes.skeleton is not None:
-                nodes.skeleton.visible = not solid
+        with self._state:  # the Show all callback runs while a job may be drawing
+            for (sid, _key), nodes in self._hands.items():
+                chosen = sid == self.current and nodes.index == self.selected
+                nodes.frame.visible = chosen or (show_all and not nodes.executed)
+                solid = chosen and (nodes.executed or (sid, f"exec_g{nodes.index}") not in self._hands)
+                nodes.solid.visible = solid
+                if nodes.skeleton is not None:
+                    nodes.skeleton.visible = not solid
 
     def _refresh_panel(self) -> None:
         """Grasp dropdown, styles and info for the listed segment."""
