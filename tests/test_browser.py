@@ -7,8 +7,10 @@ and waits for the completion's scene nodes to appear on the server.
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,28 @@ try:
     from playwright.sync_api import sync_playwright
 except ImportError:  # pragma: no cover - depends on the environment
     sync_playwright = None
+
+
+needs_browser = pytest.mark.skipif(
+    not CHROMIUM.exists() or sync_playwright is None,
+    reason="needs Debian chromium at /usr/bin/chromium (apt-get install chromium) and playwright "
+           "(pip install playwright)")
+
+
+@contextlib.contextmanager
+def browser_page(app, **page_options) -> Iterator:
+    """A headless Chromium page connected to ``app`` (closed afterwards); ``page_options`` go to
+    ``new_page`` (default viewport 1280x800)."""
+    page_options.setdefault("viewport", {"width": 1280, "height": 800})
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(**page_options)
+            page.goto(app.url)
+            page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
+            yield page
+        finally:
+            browser.close()
 
 
 def free_port() -> int:
@@ -53,9 +77,7 @@ def reported_camera(client):
         return None
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian chromium not installed at /usr/bin/chromium "
-                                                   "(apt-get install chromium)")
-@pytest.mark.skipif(sync_playwright is None, reason="playwright (python) is not installed (pip install playwright)")
+@needs_browser
 def test_click_segment_completes_it(tmp_path):
     import viser
 
@@ -65,65 +87,56 @@ def test_click_segment_completes_it(tmp_path):
     # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
     app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
     try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-            try:
-                page = browser.new_page(viewport={"width": 1280, "height": 800})
-                page.goto(app.url)
-                page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
-                client = wait_until(lambda: next(iter(app.server.get_clients().values()), None), 15,
-                                    "the browser to connect")
-                cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
-                canvas = page.locator("canvas").first
-                canvas.wait_for(state="visible", timeout=20_000)
-                box = canvas.bounding_box()
+        with browser_page(app) as page:
+            client = wait_until(lambda: next(iter(app.server.get_clients().values()), None), 15,
+                                "the browser to connect")
+            cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+            canvas = page.locator("canvas").first
+            canvas.wait_for(state="visible", timeout=20_000)
+            box = canvas.bounding_box()
 
-                # Click the largest segment that is in view, not hidden behind another one and
-                # not under the control panel.
-                R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
-                target = None
-                for sid in sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s])):
-                    centroid = app.segment_centroid_world(sid)
-                    if app.pick(*ray_through(cam.position, centroid)) != sid:
-                        continue
-                    u, v = project_to_pixels(centroid[None], cam.position, R, cam.fov,
-                                             cam.image_width, cam.image_height)[0]
-                    x = box["x"] + u * box["width"] / cam.image_width
-                    y = box["y"] + v * box["height"] / cam.image_height
-                    if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS":
-                        target = (sid, x, y)
-                        break
-                assert target is not None, "no segment is visible on the canvas"
-                sid, x, y = target
+            # Click the largest segment that is in view, not hidden behind another one and
+            # not under the control panel.
+            R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
+            target = None
+            for sid in sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s])):
+                centroid = app.segment_centroid_world(sid)
+                if app.pick(*ray_through(cam.position, centroid)) != sid:
+                    continue
+                u, v = project_to_pixels(centroid[None], cam.position, R, cam.fov,
+                                         cam.image_width, cam.image_height)[0]
+                x = box["x"] + u * box["width"] / cam.image_width
+                y = box["y"] + v * box["height"] / cam.image_height
+                if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS":
+                    target = (sid, x, y)
+                    break
+            assert target is not None, "no segment is visible on the canvas"
+            sid, x, y = target
 
-                # The canvas may not handle pointer events before its first frame: click again
-                # until the completion shows up (the app records it once all its nodes are added).
-                def completed() -> bool:
-                    return sid in app.completions
+            # The canvas may not handle pointer events before its first frame: click again
+            # until the completion shows up (the app records it once all its nodes are added).
+            def completed() -> bool:
+                return sid in app.completions
 
-                deadline = time.monotonic() + 45
-                while not completed() and time.monotonic() < deadline:
-                    page.mouse.click(x, y)
-                    try:
-                        wait_until(completed, 8, "the completion")
-                    except AssertionError:
-                        pass
-                assert completed(), f"clicking segment {sid} at ({x:.0f}, {y:.0f}) did not complete it"
-                for layer in ("fast_mesh", "cnn_input", "cnn_output"):
-                    assert app.server.scene.get_handle_by_name(f"/{layer}/seg_{sid}") is not None
-                assert app.selected == sid
-                assert app.last_timings["click_to_mesh"] > 0
-                time.sleep(2)  # let the browser draw the new nodes before the screenshot
-                page.screenshot(path=str(tmp_path / "completed.png"))
-            finally:
-                browser.close()
+            deadline = time.monotonic() + 45
+            while not completed() and time.monotonic() < deadline:
+                page.mouse.click(x, y)
+                try:
+                    wait_until(completed, 8, "the completion")
+                except AssertionError:
+                    pass
+            assert completed(), f"clicking segment {sid} at ({x:.0f}, {y:.0f}) did not complete it"
+            for layer in ("fast_mesh", "cnn_input", "cnn_output"):
+                assert app.server.scene.get_handle_by_name(f"/{layer}/seg_{sid}") is not None
+            assert app.selected == sid
+            assert app.last_timings["click_to_mesh"] > 0
+            time.sleep(2)  # let the browser draw the new nodes before the screenshot
+            page.screenshot(path=str(tmp_path / "completed.png"))
     finally:
         app.stop()
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian chromium not installed at /usr/bin/chromium "
-                                                   "(apt-get install chromium)")
-@pytest.mark.skipif(sync_playwright is None, reason="playwright (python) is not installed (pip install playwright)")
+@needs_browser
 def test_plan_grasps_button_draws_hands(tmp_path):
     from shapeviewer.viewer import ViewerApp
 
@@ -132,33 +145,26 @@ def test_plan_grasps_button_draws_hands(tmp_path):
         sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
         assert app.complete(sid) is not None and app.selected == sid
         app.grasps.panel.count.value = 3  # a quick plan: the test is about the button, not the planner
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        with browser_page(app) as page:
+            wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
+            button = page.get_by_role("button", name="Plan grasps")
+            button.wait_for(state="visible", timeout=30_000)
+            # A software-rendered WebGL canvas on a busy machine starves the animation frames that
+            # Playwright's "stable" check waits for: click without the check (force), and fall back
+            # to the same DOM click event if even that cannot get through.
             try:
-                page = browser.new_page(viewport={"width": 1280, "height": 800})
-                page.goto(app.url)
-                page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
-                wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
-                button = page.get_by_role("button", name="Plan grasps")
-                button.wait_for(state="visible", timeout=30_000)
-                # A software-rendered WebGL canvas on a busy machine starves the animation frames that
-                # Playwright's "stable" check waits for: click without the check (force), and fall back
-                # to the same DOM click event if even that cannot get through.
-                try:
-                    button.click(force=True, timeout=30_000)
-                except Exception:  # noqa: BLE001
-                    button.dispatch_event("click")
-                job = wait_until(lambda: app.grasps.job, 20, "the click to start planning")
-                assert job.wait(180), "planning did not finish"
-                assert job.error is None and sid in app.grasps.sets
-                grasps = app.grasps.sets[sid].grasps
-                assert grasps, "no grasp found"
-                for k in range(len(grasps)):
-                    assert app.server.scene.get_handle_by_name(f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
-                # The browser shows the best grasp's description.
-                page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
-                page.screenshot(path=str(tmp_path / "grasps.png"))
-            finally:
-                browser.close()
+                button.click(force=True, timeout=30_000)
+            except Exception:  # noqa: BLE001
+                button.dispatch_event("click")
+            job = wait_until(lambda: app.grasps.job, 20, "the click to start planning")
+            assert job.wait(180), "planning did not finish"
+            assert job.error is None and sid in app.grasps.sets
+            grasps = app.grasps.sets[sid].grasps
+            assert grasps, "no grasp found"
+            for k in range(len(grasps)):
+                assert app.server.scene.get_handle_by_name(f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
+            # The browser shows the best grasp's description.
+            page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
+            page.screenshot(path=str(tmp_path / "grasps.png"))
     finally:
         app.stop()

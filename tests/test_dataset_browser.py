@@ -3,7 +3,6 @@ downloads a mesh."""
 
 from __future__ import annotations
 
-import socket
 import time
 
 import numpy as np
@@ -13,20 +12,12 @@ import trimesh
 from shapeviewer.results import ResultsStore, view_stem
 
 from store_factory import VIEWS, make_store
-from test_browser import CHROMIUM, CHROMIUM_ARGS, sync_playwright, wait_until
+from test_browser import browser_page, free_port, needs_browser, wait_until
 
 pytestmark = pytest.mark.browser
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian chromium not installed at /usr/bin/chromium "
-                                                   "(apt-get install chromium)")
-@pytest.mark.skipif(sync_playwright is None, reason="playwright (python) is not installed (pip install playwright)")
+@needs_browser
 def test_index_to_view_to_mesh_download(tmp_path):
     from shapeviewer.viewer import ViewerApp
 
@@ -36,42 +27,35 @@ def test_index_to_view_to_mesh_download(tmp_path):
     # The pipeline tab shows one of the store's own captures: small, quick to draw.
     app = ViewerApp(port=free_port(), cloud=ResultsStore(root).capture(name, view), results=root)
     try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-            try:
-                page = browser.new_page(viewport={"width": 1100, "height": 760}, accept_downloads=True)
-                page.goto(app.url)
-                page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
-                wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
+        with browser_page(app, viewport={"width": 1100, "height": 760}, accept_downloads=True) as page:
+            wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
 
-                page.get_by_role("tab", name="Dataset").click()
-                # The index lists the store's objects; pick the mug in the Object dropdown.
-                page.get_by_text(name, exact=True).first.wait_for(timeout=10_000)
-                page.get_by_role("combobox", name="Object").click()
-                page.get_by_role("option", name=f"{name} ·").first.click()
-                wait_until(lambda: app.dataset.shown is not None and app.dataset.shown.info.object == name, 20,
-                           "the view to be shown")
-                assert app.dataset.active and app.dataset.shown.info.view == view
-                assert f"/dataset/truth" in app.dataset.drawn
+            page.get_by_role("tab", name="Dataset").click()
+            # The index lists the store's objects; pick the mug in the Object dropdown.
+            page.get_by_text(name, exact=True).first.wait_for(timeout=10_000)
+            page.get_by_role("combobox", name="Object").click()
+            page.get_by_role("option", name=f"{name} ·").first.click()
+            wait_until(lambda: app.dataset.shown is not None and app.dataset.shown.info.object == name, 20,
+                       "the view to be shown")
+            assert app.dataset.active and app.dataset.shown.info.view == view
+            assert f"/dataset/truth" in app.dataset.drawn
 
-                # Export the ground truth (full resolution, camera frame) through a browser download.
-                # (The Pipeline tab has a Mesh dropdown too, hidden in its tab.)
-                page.get_by_role("combobox", name="Mesh").filter(visible=True).click()
-                page.get_by_role("option", name="truth", exact=True).click()
-                wait_until(lambda: app.dataset.c.export_kind.value == "truth", 10, "the mesh choice")
-                with page.expect_download(timeout=20_000) as info:
-                    page.get_by_role("button", name="Mesh (full resolution)").click()
-                download = info.value
-                stem = view_stem(name, view)
-                assert download.suggested_filename == f"{stem}__truth_camera.ply"
-                path = tmp_path / download.suggested_filename
-                download.save_as(path)
-                got = trimesh.load(path)
-                stored = trimesh.load(root / "meshes" / f"{stem}__truth.ply")
-                assert len(got.faces) == len(stored.faces) and np.allclose(got.vertices, stored.vertices)
-                time.sleep(1)
-                page.screenshot(path=str(tmp_path / "dataset.png"))
-            finally:
-                browser.close()
+            # Export the ground truth (full resolution, camera frame) through a browser download.
+            # (The Pipeline tab has a Mesh dropdown too, hidden in its tab.)
+            page.get_by_role("combobox", name="Mesh").filter(visible=True).click()
+            page.get_by_role("option", name="truth", exact=True).click()
+            wait_until(lambda: app.dataset.c.export_kind.value == "truth", 10, "the mesh choice")
+            with page.expect_download(timeout=20_000) as info:
+                page.get_by_role("button", name="Mesh (full resolution)").click()
+            download = info.value
+            stem = view_stem(name, view)
+            assert download.suggested_filename == f"{stem}__truth_camera.ply"
+            path = tmp_path / download.suggested_filename
+            download.save_as(path)
+            got = trimesh.load(path)
+            stored = trimesh.load(root / "meshes" / f"{stem}__truth.ply")
+            assert len(got.faces) == len(stored.faces) and np.allclose(got.vertices, stored.vertices)
+            time.sleep(1)
+            page.screenshot(path=str(tmp_path / "dataset.png"))
     finally:
         app.stop()
