@@ -20,7 +20,7 @@ import trimesh
 from scipy import ndimage, sparse
 
 from .reconstruct import grid_mesh, mean_nn_distance
-from .voxel import CENTER_INDEX, GRID_DIM, GridFrame, points_to_grid
+from .voxel import GridFrame, points_to_grid
 
 MIN_POINTS = 20
 MAX_GRID_DIM = 256            # voxels per side; larger means outliers or a far too dense cloud
@@ -146,9 +146,7 @@ def _box_frame(points: np.ndarray, leaf: float) -> GridFrame:
     if dim > MAX_GRID_DIM:
         raise ValueError(f"the cloud spans {dim} voxels of {leaf * 1000:.2f} mm: remove outliers "
                          f"or downsample it (at most {MAX_GRID_DIM} per side)")
-    # GridFrame puts ``center`` at grid coordinate CENTER_INDEX * dim / 40: choose it so that
-    # grid coordinate 0 lands on ``lo``.
-    return GridFrame(lo + CENTER_INDEX * (dim / GRID_DIM) * leaf, leaf, dim)
+    return GridFrame.from_corner(lo, leaf, dim)
 
 
 def _cotangent_smooth(mesh: trimesh.Trimesh, iterations: int, lamb: float = SMOOTHING_LAMBDA) -> trimesh.Trimesh:

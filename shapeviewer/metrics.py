@@ -19,7 +19,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
-from .voxel import CENTER_INDEX, GRID_DIM, GridFrame, points_to_grid, surface_samples
+from .voxel import GridFrame, points_to_grid, surface_samples
 
 # Geodesic divergence constants from the authors' geodesic_comparison code.
 _GEODESIC_NEIGHBOURS = 5
@@ -70,10 +70,8 @@ def jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution: int = 
     if not side > 0:
         raise ValueError("the two meshes span no volume")
     voxel_size = side / resolution
-    # GridFrame puts its centre at grid coordinate CENTER_INDEX * dim / 40, not at the middle of the
-    # grid; shift the centre so that the union box's centre lands on grid coordinate resolution / 2.
-    offset = CENTER_INDEX * (resolution / GRID_DIM)
-    frame = GridFrame((lo + hi) / 2.0 - (resolution / 2.0 - offset) * voxel_size, voxel_size, resolution)
+    # The cube is centred on the union box: its corner is half a side below the box's centre.
+    frame = GridFrame.from_corner((lo + hi) / 2.0 - side / 2.0, voxel_size, resolution)
     grid_a = _occupancy_grid(mesh_a, frame)
     grid_b = _occupancy_grid(mesh_b, frame)
     union = np.count_nonzero(grid_a | grid_b)

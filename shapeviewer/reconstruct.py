@@ -33,7 +33,7 @@ def grid_mesh(values: np.ndarray, frame: GridFrame, level: float) -> trimesh.Tri
     The volume is padded with one layer below ``level`` so the surface closes at the grid border.
     Returns a watertight mesh in the camera frame (metres) with outward normals.
     """
-    if not np.any(values > level):
+    if not np.any(values > level + LEVEL_NUDGE):
         raise EmptyCompletionError("no voxel is above the iso level: the completion is empty")
     pad_value = min(float(values.min()), level) - 1.0
     padded = np.pad(np.asarray(values, dtype=np.float32), 1, constant_values=pad_value)
@@ -350,15 +350,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     t["smooth"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if not (F > SURFACE_LEVEL).any():
-        raise EmptyCompletionError("the merged volume is thinner than one voxel everywhere: no surface")
-    verts, faces, _, _ = measure.marching_cubes(np.pad(F, 1, constant_values=-BAND_VALUE),
-                                                level=SURFACE_LEVEL + LEVEL_NUDGE)
-    # Padded index i is voxel i - 1, whose centre is at origin + (i - 1 + 0.5) * leaf.
-    mesh = trimesh.Trimesh(origin + (verts - 0.5) * leaf, faces, process=False)  # see grid_mesh
-    mesh = _drop_specks(mesh)
-    if mesh.volume < 0:
-        mesh.invert()
+    mesh = _drop_specks(grid_mesh(F, GridFrame.from_corner(origin, leaf, int(shape.max())), SURFACE_LEVEL))
     t["marching_cubes"] = time.perf_counter() - t0
     t["upsample_ratio"] = r
     return mesh

@@ -48,6 +48,14 @@ class GridFrame:
         if not np.all(np.isfinite(self.center)) or not (self.voxel_size > 0):
             raise ValueError(f"invalid grid frame: center={self.center}, voxel_size={self.voxel_size}")
 
+    @classmethod
+    def from_corner(cls, corner: np.ndarray, voxel_size: float, dim: int) -> "GridFrame":
+        """The frame of a ``dim``^3 grid whose voxel (0, 0, 0) starts at ``corner`` (camera metres)."""
+        # ``center`` sits at grid coordinate CENTER_INDEX * dim / 40: place it so that grid
+        # coordinate 0 lands on ``corner``.
+        return cls(np.asarray(corner, dtype=np.float64) + CENTER_INDEX * (dim / GRID_DIM) * voxel_size,
+                   voxel_size, dim)
+
     @property
     def offset(self) -> np.ndarray:
         """Grid coordinate of ``center`` (scaled with ``dim`` so up-sampled grids stay aligned)."""
