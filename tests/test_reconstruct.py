@@ -42,6 +42,14 @@ def _rendered_view(mesh, T_cam_obj, seed=0):
     return backproject_valid(KinectNoise().apply(depth, seed), intr)
 
 
+def _share_outside(mesh, truth, distance):
+    """Share of ``truth``'s surface more than ``distance`` (m) outside ``mesh``."""
+    import trimesh
+
+    samples, _ = trimesh.sample.sample_surface(truth, 4000, seed=0)
+    return float(np.mean(trimesh.proximity.signed_distance(mesh, samples) < -distance))
+
+
 def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
     import manifold3d
     import trimesh
@@ -65,10 +73,10 @@ def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
     assert m.status() == manifold3d.Error.NoError
     assert set(timings) >= {"density", "upsample", "merge", "fill_gaps", "smooth", "marching_cubes"}
     truth = box.copy().apply_transform(T)
-    # Closer to the truth than the fast mesh of the same grid.
-    fast = fast_mesh(probs, frame)
-    assert hausdorff(mesh, truth)["mean_mm"] < hausdorff(fast, truth)["mean_mm"]
     assert hausdorff(mesh, truth)["mean_mm"] < 3.0
+    # A slightly conservative envelope, as a grasp planner needs: hardly any of the true surface
+    # lies more than 1 mm outside it (fingers planned past it would hit the true box early).
+    assert _share_outside(mesh, truth, 0.001) < 0.05
     # The observed points lie on the surface (within about one fine voxel, 2 x their spacing).
     d = np.abs(trimesh.proximity.signed_distance(mesh, pts[::20]))
     assert np.median(d) < 0.003
@@ -94,5 +102,6 @@ def test_detailed_mesh_keeps_a_thin_plate_whole():
     mesh = detailed_mesh(probs, frame, pts)
     truth = plate.copy().apply_transform(T)
     assert mesh.is_watertight and len(mesh.split(only_watertight=False)) == 1
-    assert mesh.volume == pytest.approx(truth.volume, rel=0.3)
+    assert truth.volume < mesh.volume < 1.6 * truth.volume
+    assert _share_outside(mesh, truth, 0.001) < 0.06
     assert hausdorff(mesh, truth)["mean_mm"] < 2.5
