@@ -144,6 +144,26 @@ def test_selection_highlights_one_grasp(app, planned):
     assert node(app, f"/grasps/seg_{sid}/g1").visible is True
 
 
+def test_clicking_a_hand_selects_its_grasp(app, planned):
+    if len(planned.grasps) < 2:
+        pytest.skip("needs two grasps")
+    g = planned.grasps[1]
+    # A click ray down the wrist of grasp #2, from 5 cm behind its palm: it meets that hand
+    # before the object the hand holds.
+    origin = g.position - 0.05 * g.approach
+    app.grasps.select(0)
+    try:
+        assert app.grasps.pick(origin, g.approach)[0] == 1
+        assert app.click(origin, g.approach) == "grasp"
+        assert app.grasps.selected == 1 and app.grasps.panel.grasp.value.startswith("#2 ")
+        assert node(app, f"/grasps/seg_{planned.segment_id}/g1/hand").visible
+        # A ray from above the scene pointing up selects nothing and completes nothing.
+        assert app.click([0.0, 0.0, 3.0], [0.0, 0.0, 1.0]) == "nothing"
+        assert app.grasps.selected == 1
+    finally:
+        app.grasps.select(0)
+
+
 def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, planned):
     sid = largest_segments(app)[1]
     assert sid not in app.completions

@@ -45,7 +45,7 @@ from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
 from .dataset import DatasetHooks, DatasetTab
 from .grasps import GraspController, GraspJob
-from .rays import pick_segment
+from .rays import first_hit
 from .visuals import default_view, depth_colors, probability_colors, shade, surface_voxels, voxel_cubes
 
 log = logging.getLogger(__name__)
@@ -218,9 +218,30 @@ class ViewerApp:
 
     def pick(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> int | None:
         """The segment a world-frame ray hits first (None when it misses all segments)."""
+        return self.pick_hit(ray_origin, ray_direction)[0]
+
+    def pick_hit(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> tuple[int | None, float]:
+        """:meth:`pick` and how far along the ray (metres) it hits: ``(None, inf)`` on a miss."""
         if self.scene is None:
-            return None
-        return pick_segment(ray_origin, ray_direction, self.scene.points_world)
+            return None, np.inf
+        return first_hit(ray_origin, ray_direction, self.scene.points_world)
+
+    def click(self, ray_origin: np.ndarray, ray_direction: np.ndarray,
+              client: viser.ClientHandle | None = None) -> str:
+        """A click in the 3D view (world-frame ray): a grasp's hand in front of the segments
+        selects that grasp, a segment is completed. Returns what happened: ``"grasp"``,
+        ``"segment"`` or ``"nothing"``."""
+        k, t_hand = self.grasps.pick(ray_origin, ray_direction)
+        sid, t_segment = self.pick_hit(ray_origin, ray_direction)
+        if k is not None and t_hand <= t_segment:
+            self.grasps.select(k)
+            return "grasp"
+        if sid is None:
+            self._notify(client, "No segment there", "Click on a coloured segment, or on a grasp's hand.",
+                         auto_close=3.0)
+            return "nothing"
+        self.complete(sid, client)
+        return "segment"
 
     def segment_centroid_world(self, segment_id: int) -> np.ndarray:
         """Mean of a segment's points, world metres."""
@@ -666,14 +687,8 @@ class ViewerApp:
 
         @self.server.scene.on_click()
         def _(event: viser.SceneClickEvent) -> None:
-            if not self._pipeline_visible:  # the dataset is on screen: its clicks are not segment picks
-                return
-            sid = self.pick(event.ray_origin, event.ray_direction)
-            if sid is None:
-                self._notify(event.client, "No segment there", "Click on a coloured segment to complete it.",
-                             auto_close=3.0)
-            else:
-                self.complete(sid, event.client)
+            if self._pipeline_visible:  # the dataset is on screen: its clicks are not picks
+                self.click(event.ray_origin, event.ray_direction, event.client)
 
         @p.segment.on_update
         def _(event: viser.GuiEvent) -> None:

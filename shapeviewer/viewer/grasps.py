@@ -44,6 +44,7 @@ from ..grasp.hands import HAND_NAMES, Hand, get_hand, hand_meshes
 from ..grasp.plan import Grasp, PlanStats, plan
 from ..segment import Segment
 from .panel import MESH_KINDS
+from .rays import first_hit, sample_segments
 from .visuals import shade
 
 if TYPE_CHECKING:
@@ -62,6 +63,10 @@ EXECUTED_OPACITY = 0.6
 TRUTH_COLOR = (250, 200, 60)  # gold: unlike any segment colour
 TRUTH_OPACITY = 0.5
 SKELETON_THICKNESS = 0.003  # m: the stick figures of the grasps other than the selected one
+# A click picks a hand when its ray passes within PICK_TOLERANCE (+ 1 % of the distance) of a
+# point along the hand's stick figure; nearer than a segment's tolerance, since hands crowd.
+PICK_SPACING = 0.004  # m between those points
+PICK_TOLERANCE = 0.006  # m
 PALM_SHADE = 0.7  # the palm a little darker than the fingers, so the hand's shape reads at a glance
 MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share of its labelled points are
 
@@ -286,6 +291,7 @@ class _HandNodes:
     skeleton: viser.SceneNodeHandle | None
     index: int
     executed: bool
+    pick_points: np.ndarray  # (N, 3) world metres along the stick figure, for click picking
 
 
 class GraspController:
@@ -538,6 +544,14 @@ class GraspController:
     # ------------------------------------------------------------------------------------------
     # Selection, export, scene changes
 
+    def pick(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> tuple[int | None, float]:
+        """``(index, t)`` of the listed segment's grasp whose visible hand a world-frame click ray
+        hits first, ``t`` metres along the ray; ``(None, inf)`` when it misses them all."""
+        with self._state:
+            shown = {nodes.index: nodes.pick_points for (sid, _key), nodes in self._hands.items()
+                     if sid == self.current and not nodes.executed and nodes.frame.visible}
+        return first_hit(ray_origin, ray_direction, shown, PICK_TOLERANCE)
+
     def select(self, index: int | None, segment_id: int | None = None) -> None:
         """Select grasp ``index`` of segment ``segment_id`` (default: the listed one) and restyle."""
         with self._state:
@@ -606,9 +620,11 @@ class GraspController:
                                   np.asarray(mesh.faces, np.uint32), color=rgb, opacity=opacity, position=T[:3, 3],
                                   wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz, cast_shadow=False,
                                   receive_shadow=False)
+        sticks = hand_skeleton(hand, q)
         skeleton = None if executed else scene.add_line_segments(
-            f"{name}/skeleton", hand_skeleton(hand, q).astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS)
-        self._hands[(sid, key)] = _HandNodes(frame, solid, skeleton, k, executed)
+            f"{name}/skeleton", sticks.astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS)
+        pick_points = transform_points(T_world_palm, sample_segments(sticks, PICK_SPACING))
+        self._hands[(sid, key)] = _HandNodes(frame, solid, skeleton, k, executed, pick_points)
 
     def _draw_segment(self, s: SegmentGrasps) -> None:
         """(Re)draw a segment's planned hands, and its executions if any."""

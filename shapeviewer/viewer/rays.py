@@ -1,7 +1,8 @@
 """Picking segments with a click ray, and projecting world points to a browser camera's pixels.
 
 viser point clouds are not clickable, so a click on the canvas only gives a ray (world frame,
-metres). :func:`pick_segment` finds the segment whose points lie nearest that ray.
+metres). :func:`pick_segment` finds the segment whose points lie nearest that ray; the grasp
+controller picks hands the same way (:func:`first_hit` on points along their stick figures).
 :func:`project_to_pixels` is the inverse direction (used by the browser test to click a point).
 
 Pure numpy: no viser import, so tests can call it directly.
@@ -10,6 +11,7 @@ Pure numpy: no viser import, so tests can call it directly.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TypeVar
 
 import numpy as np
 
@@ -19,30 +21,32 @@ import numpy as np
 ABS_TOLERANCE = 0.01  # metres
 REL_TOLERANCE = 0.01  # metres per metre along the ray
 
+K = TypeVar("K")
 
-def pick_segment(origin: np.ndarray, direction: np.ndarray, segments_world: Mapping[int, np.ndarray],
-                 abs_tolerance: float = ABS_TOLERANCE, rel_tolerance: float = REL_TOLERANCE) -> int | None:
-    """The id of the segment the ray hits first, or None.
+
+def first_hit(origin: np.ndarray, direction: np.ndarray, point_sets: Mapping[K, np.ndarray],
+              abs_tolerance: float = ABS_TOLERANCE, rel_tolerance: float = REL_TOLERANCE) -> tuple[K | None, float]:
+    """``(key, t)`` of the point set the ray hits first, or ``(None, inf)``.
 
     Args:
         origin: (3,) ray origin, world metres.
         direction: (3,) ray direction, world frame (any length).
-        segments_world: segment id -> (N, 3) finite points, world metres.
+        point_sets: key -> (N, 3) finite points, world metres.
         abs_tolerance, rel_tolerance: a point counts as hit when its perpendicular distance to the
             ray is at most ``abs_tolerance + rel_tolerance * t`` (t = its distance along the ray).
 
     Returns:
-        Among the segments with a hit point in front of the origin, the one whose hit point is
-        nearest along the ray (what the user sees in front); None when the ray misses them all.
+        Among the sets with a hit point in front of the origin, the one whose hit point is nearest
+        along the ray (what the user sees in front), and that distance ``t`` (metres).
     """
     o = np.asarray(origin, dtype=np.float64).reshape(3)
     d = np.asarray(direction, dtype=np.float64).reshape(3)
     norm = np.linalg.norm(d)
     if not np.isfinite(norm) or norm == 0:
-        return None
+        return None, np.inf
     d = d / norm
-    best_id, best_t = None, np.inf
-    for sid, pts in segments_world.items():
+    best_key, best_t = None, np.inf
+    for key, pts in point_sets.items():
         v = np.asarray(pts, dtype=np.float64).reshape(-1, 3) - o
         t = v @ d
         perp2 = np.einsum("ij,ij->i", v, v) - t * t
@@ -50,8 +54,26 @@ def pick_segment(origin: np.ndarray, direction: np.ndarray, segments_world: Mapp
         if hit.any():
             t_hit = float(t[hit].min())
             if t_hit < best_t:
-                best_id, best_t = sid, t_hit
-    return best_id
+                best_key, best_t = key, t_hit
+    return best_key, best_t
+
+
+def pick_segment(origin: np.ndarray, direction: np.ndarray, segments_world: Mapping[int, np.ndarray],
+                 abs_tolerance: float = ABS_TOLERANCE, rel_tolerance: float = REL_TOLERANCE) -> int | None:
+    """The id of the segment (id -> (N, 3) world points) the ray hits first, or None
+    (see :func:`first_hit`)."""
+    return first_hit(origin, direction, segments_world, abs_tolerance, rel_tolerance)[0]
+
+
+def sample_segments(segments: np.ndarray, spacing: float) -> np.ndarray:
+    """Points about ``spacing`` apart along line segments ((N, 2, 3), same unit), ends included:
+    a stick figure as a point set :func:`first_hit` can pick."""
+    segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 3)
+    out = []
+    for a, b in segments:
+        n = max(int(np.ceil(np.linalg.norm(b - a) / spacing)), 1)
+        out.append(a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a))
+    return np.vstack(out) if out else np.zeros((0, 3))
 
 
 def ray_through(origin: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
