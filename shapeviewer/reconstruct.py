@@ -76,8 +76,9 @@ SMOOTH_ITERATIONS = 100       # FISTA steps (see lempitsky_smooth); the paper ra
 # An addition to the paper's steps. Merge: CNN voxels more than one voxel in front of the
 # observed surface along a camera ray are space the camera saw as free, and are carved away.
 # Marching cubes runs at F = 0, Lempitsky's level set, as in the paper. A voxel of the merged grid
-# is occupied when a point falls in it, so the surface lies about half a merge voxel (1-2 mm)
-# outside the points: the mesh is a slightly conservative envelope, which is what grasping needs.
+# is occupied when a point falls in it, so the surface lies about half a merge voxel (about the
+# points' spacing: 1-3 mm for a Kinect at 0.5-1 m) outside the points: the mesh is a slightly
+# conservative envelope, which is what grasping needs.
 # A higher level fits the points more tightly but leaves parts of the true object a millimetre
 # outside the mesh here and there, and the open fingers of a grasp planned on it, passing that
 # close, hit them on the true object and stop the hand early. On a development sample (36 views,
