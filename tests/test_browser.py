@@ -1,4 +1,5 @@
-"""The viewer in a real browser: headless Debian Chromium (Playwright) clicks a segment on the canvas.
+"""The viewer in a real browser: headless Debian Chromium (Playwright) clicks a segment and a
+grasp's hand on the canvas, and the Plan grasps button.
 
 The app runs in this process, so the test reads the browser's camera server-side
 (``client.camera``), projects a segment's centroid (world frame) to canvas pixels, clicks there,
@@ -77,12 +78,42 @@ def reported_camera(client):
         return None
 
 
-@needs_browser
-def test_click_segment_completes_it(tmp_path):
+def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] | None:
+    """Page pixel (x, y) where the browser draws ``point_world``, or None when the control panel
+    (or anything else) covers it there."""
     import viser
 
+    from shapeviewer.viewer.rays import project_to_pixels
+
+    cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+    canvas = page.locator("canvas").first
+    canvas.wait_for(state="visible", timeout=20_000)
+    box = canvas.bounding_box()
+    R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
+    u, v = project_to_pixels(np.asarray(point_world)[None], cam.position, R, cam.fov, cam.image_width,
+                             cam.image_height)[0]
+    x = box["x"] + u * box["width"] / cam.image_width
+    y = box["y"] + v * box["height"] / cam.image_height
+    return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
+
+
+def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = 45.0) -> None:
+    """Click at ``xy`` until ``done()``: the canvas may not handle pointer events before its
+    first frame."""
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        page.mouse.click(*xy)
+        try:
+            wait_until(done, 8, what)
+        except AssertionError:
+            pass
+    assert done(), f"clicking at ({xy[0]:.0f}, {xy[1]:.0f}) did not lead to {what}"
+
+
+@needs_browser
+def test_click_segment_completes_it(tmp_path):
     from shapeviewer.viewer import ViewerApp
-    from shapeviewer.viewer.rays import project_to_pixels, ray_through
+    from shapeviewer.viewer.rays import ray_through
 
     # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
     app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
@@ -91,41 +122,20 @@ def test_click_segment_completes_it(tmp_path):
             client = wait_until(lambda: next(iter(app.server.get_clients().values()), None), 15,
                                 "the browser to connect")
             cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
-            canvas = page.locator("canvas").first
-            canvas.wait_for(state="visible", timeout=20_000)
-            box = canvas.bounding_box()
-
             # Click the largest segment that is in view, not hidden behind another one and
             # not under the control panel.
-            R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
             target = None
             for sid in sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s])):
                 centroid = app.segment_centroid_world(sid)
-                if app.pick(*ray_through(cam.position, centroid)) != sid:
-                    continue
-                u, v = project_to_pixels(centroid[None], cam.position, R, cam.fov,
-                                         cam.image_width, cam.image_height)[0]
-                x = box["x"] + u * box["width"] / cam.image_width
-                y = box["y"] + v * box["height"] / cam.image_height
-                if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS":
-                    target = (sid, x, y)
-                    break
+                if app.pick(*ray_through(cam.position, centroid)) == sid:
+                    xy = canvas_point(page, client, centroid)
+                    if xy is not None:
+                        target = (sid, xy)
+                        break
             assert target is not None, "no segment is visible on the canvas"
-            sid, x, y = target
-
-            # The canvas may not handle pointer events before its first frame: click again
-            # until the completion shows up (the app records it once all its nodes are added).
-            def completed() -> bool:
-                return sid in app.completions
-
-            deadline = time.monotonic() + 45
-            while not completed() and time.monotonic() < deadline:
-                page.mouse.click(x, y)
-                try:
-                    wait_until(completed, 8, "the completion")
-                except AssertionError:
-                    pass
-            assert completed(), f"clicking segment {sid} at ({x:.0f}, {y:.0f}) did not complete it"
+            sid, xy = target
+            # The app records the completion once all its nodes are added.
+            click_until(page, xy, lambda: sid in app.completions, f"the completion of segment {sid}")
             for layer in ("fast_mesh", "cnn_input", "cnn_output"):
                 assert app.server.scene.get_handle_by_name(f"/{layer}/seg_{sid}") is not None
             assert app.selected == sid
@@ -137,8 +147,12 @@ def test_click_segment_completes_it(tmp_path):
 
 
 @needs_browser
-def test_plan_grasps_button_draws_hands(tmp_path):
+def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_path):
+    from shapeviewer.camera import transform_points
+    from shapeviewer.grasp.hands import get_hand
     from shapeviewer.viewer import ViewerApp
+    from shapeviewer.viewer.grasps import hand_skeleton
+    from shapeviewer.viewer.rays import ray_through
 
     app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
     try:
@@ -166,5 +180,26 @@ def test_plan_grasps_button_draws_hands(tmp_path):
             # The browser shows the best grasp's description.
             page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
             page.screenshot(path=str(tmp_path / "grasps.png"))
+
+            # Clicking another grasp's hand on the canvas selects it (and completes nothing).
+            client = next(iter(app.server.get_clients().values()))
+            cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+            hand = get_hand("barrett")
+            target = None
+            for k, g in enumerate(grasps[1:], start=1):
+                sticks = hand_skeleton(hand, [g.joints[n] for n in hand.joint_names]).reshape(-1, 3)
+                for point in transform_points(g.T_world_palm, sticks):
+                    if app.grasps.pick(*ray_through(cam.position, point))[0] == k:
+                        xy = canvas_point(page, client, point)
+                        if xy is not None:
+                            target = (k, xy)
+                            break
+                if target:
+                    break
+            assert target is not None, "no other grasp's hand is in view"
+            k, xy = target
+            completed = set(app.completions)
+            click_until(page, xy, lambda: app.grasps.selected == k, f"grasp #{k + 1} being selected")
+            assert app.grasps.panel.grasp.value.startswith(f"#{k + 1} ") and set(app.completions) == completed
     finally:
         app.stop()
