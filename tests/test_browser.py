@@ -199,7 +199,9 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             assert target is not None, "no other grasp's hand is in view"
             k, xy = target
             completed = set(app.completions)
-            click_until(page, xy, lambda: app.grasps.selected == k, f"grasp #{k + 1} being selected")
-            assert app.grasps.panel.grasp.value.startswith(f"#{k + 1} ") and set(app.completions) == completed
+            # The click handler runs on viser's thread: wait for all of the selection, dropdown included.
+            click_until(page, xy, lambda: app.grasps.selected == k and app.grasps.panel.grasp.value.startswith(
+                f"#{k + 1} "), f"grasp #{k + 1} being selected")
+            assert set(app.completions) == completed
     finally:
         app.stop()
