@@ -85,7 +85,7 @@ SMOOTH_ITERATIONS = 100       # FISTA steps (see lempitsky_smooth); the paper ra
 # seed 1; the tables use seed 0), mean Jaccard / Hausdorff 0.700 / 3.31 mm at F = 0, 0.715 / 3.10
 # at 0.1, 0.727 / 2.87 at 0.25 (fast mesh 0.701 / 3.31); 20 grasps per view executed on the true
 # mesh, median joint / pose error and lift success 1.4 deg / 0.0 mm / 69 % at F = 0, 1.7 / 1.4 /
-# 62 % at 0.1, 3.4 / 5.4 / 54 % at 0.25 (planning clearance 1 mm).
+# 62 % at 0.1, 3.4 / 5.4 / 54 % at 0.25.
 SURFACE_LEVEL = 0.0
 # Cleanup: closed parts smaller than this share of the largest part's volume are specks (a few
 # stray observed points, a CNN island) and are dropped; larger separate parts are kept.

@@ -11,7 +11,7 @@ import trimesh
 
 from shapeviewer.camera import transform_points
 from shapeviewer.viewer import ViewerApp
-from shapeviewer.viewer.rays import pick_segment, project_to_pixels, ray_through
+from shapeviewer.viewer.rays import first_hit, project_to_pixels, ray_through
 from shapeviewer.viewer.visuals import surface_voxels
 
 
@@ -142,10 +142,11 @@ def test_pick_prefers_the_nearest_segment():
     rng = np.random.default_rng(0)
     blob = rng.normal(0, 0.02, (500, 3))
     segments = {7: blob + [0, 0, 1.0], 3: blob + [0, 0, 2.0]}
-    assert pick_segment([0, 0, 0], [0, 0, 1], segments) == 7
-    assert pick_segment([0, 0, 3], [0, 0, -1], segments) == 3
-    assert pick_segment([0, 0, 0], [0, 0, -1], segments) is None  # both behind the origin
-    assert pick_segment([0.5, 0, 0], [0, 0, 1], segments) is None
+    key, t = first_hit([0, 0, 0], [0, 0, 1], segments)
+    assert key == 7 and 0.9 < t < 1.0  # metres along the ray to the blob's near side
+    assert first_hit([0, 0, 3], [0, 0, -1], segments)[0] == 3
+    assert first_hit([0, 0, 0], [0, 0, -1], segments) == (None, np.inf)  # both behind the origin
+    assert first_hit([0.5, 0, 0], [0, 0, 1], segments) == (None, np.inf)
 
 
 def test_projection_matches_a_ray():

@@ -1,8 +1,8 @@
 """Picking segments with a click ray, and projecting world points to a browser camera's pixels.
 
 viser point clouds are not clickable, so a click on the canvas only gives a ray (world frame,
-metres). :func:`pick_segment` finds the segment whose points lie nearest that ray; the grasp
-controller picks hands the same way (:func:`first_hit` on points along their stick figures).
+metres). :func:`first_hit` finds the point set nearest along that ray: the app's segments, and the
+grasp controller's hands as points along their stick figures (:func:`sample_segments`).
 :func:`project_to_pixels` is the inverse direction (used by the browser test to click a point).
 
 Pure numpy: no viser import, so tests can call it directly.
@@ -56,13 +56,6 @@ def first_hit(origin: np.ndarray, direction: np.ndarray, point_sets: Mapping[K, 
             if t_hit < best_t:
                 best_key, best_t = key, t_hit
     return best_key, best_t
-
-
-def pick_segment(origin: np.ndarray, direction: np.ndarray, segments_world: Mapping[int, np.ndarray],
-                 abs_tolerance: float = ABS_TOLERANCE, rel_tolerance: float = REL_TOLERANCE) -> int | None:
-    """The id of the segment (id -> (N, 3) world points) the ray hits first, or None
-    (see :func:`first_hit`)."""
-    return first_hit(origin, direction, segments_world, abs_tolerance, rel_tolerance)[0]
 
 
 def sample_segments(segments: np.ndarray, spacing: float) -> np.ndarray:
