@@ -6,3 +6,39 @@ import os
 # instead of 20 ms) as soon as anything else runs on a 2-core machine. Sleeping waits keep clicks
 # fast under load. Only effective before torch is first imported, hence here.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+# The public API, imported on first use so that `import shapeviewer` stays light (no torch,
+# open3d or pybullet until a function needs them).
+_API = {
+    "complete": ".pipeline",
+    "load_capture": ".capture",
+    "segment_scene": ".segment",
+    "partial_to_grid": ".voxel",
+    "context_grids": ".voxel",
+    "GridFrame": ".voxel",
+    "load_completer": ".model",
+    "fast_mesh": ".reconstruct",
+    "detailed_mesh": ".reconstruct",
+    "partial_mesh": ".baselines",
+    "mirror_mesh": ".baselines",
+    "hull_mesh": ".baselines",
+    "completion_metrics": ".metrics",
+    "plan_grasps": (".grasp.plan", "plan"),
+    "execute_grasps": (".grasp.execute", "execute_grasps"),
+}
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str):
+    if name not in _API:
+        raise AttributeError(f"module 'shapeviewer' has no attribute {name!r}")
+    import importlib
+
+    module, attr = _API[name] if isinstance(_API[name], tuple) else (_API[name], name)
+    value = getattr(importlib.import_module(module, __name__), attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -2,6 +2,8 @@
 
 * :func:`partial_mesh`: marching cubes of the observed points alone, then cotangent Laplacian
   smoothing. It has no notion of the unseen side: a thin closed shell around the visible surface.
+* :func:`hull_mesh`: the convex hull of the observed points, the most naive completion there is
+  (not in the paper): the first thing a sceptical user compares a completion against.
 * :func:`mirror_mesh`: Bohg et al., ICRA 2011, "Mind the gap": the object is assumed symmetric
   about a plane perpendicular to the support plane. The plane that best explains the view
   (:func:`find_mirror_plane`) mirrors the observed points, and Poisson surface reconstruction of
@@ -20,7 +22,7 @@ import trimesh
 from scipy import ndimage, sparse
 
 from .reconstruct import grid_mesh, mean_nn_distance
-from .voxel import GridFrame, points_to_grid
+from .voxel import GridFrame, points_to_grid, unit_plane
 
 MIN_POINTS = 20
 MAX_GRID_DIM = 256            # voxels per side; larger means outliers or a far too dense cloud
@@ -114,6 +116,25 @@ def partial_mesh(points_cam: np.ndarray, leaf_factor: float = PARTIAL_LEAF_FACTO
     """
     points = _observed_points(points_cam)
     return _voxel_mesh(points, leaf_factor * mean_nn_distance(points), iso_level, smoothing_iterations)
+
+
+def hull_mesh(points_cam: np.ndarray) -> trimesh.Trimesh:
+    """The Hull baseline: the convex hull of the observed points (camera frame, metres).
+
+    Raises:
+        ValueError: fewer than ``MIN_POINTS`` distinct finite points, or points that span no volume
+            (all on one plane or line).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = _observed_points(points_cam)
+    try:
+        hull = ConvexHull(points)
+    except QhullError as e:
+        raise ValueError(f"the points span no volume, so they have no convex hull: {str(e).splitlines()[0]}") from e
+    mesh = trimesh.Trimesh(points[hull.vertices], np.searchsorted(hull.vertices, hull.simplices), process=False)
+    trimesh.repair.fix_normals(mesh)
+    return mesh
 
 
 def _voxel_mesh(points: np.ndarray, leaf: float, iso_level: float, smoothing_iterations: int,
@@ -217,7 +238,7 @@ def mirror_mesh(points_cam: np.ndarray, support_plane_cam: np.ndarray | None,
     points = _observed_points(points_cam)
     center = np.asarray(camera_center, dtype=np.float64).reshape(3)
     plane = find_mirror_plane(points, support_plane_cam, center)
-    table = None if support_plane_cam is None else _unit_plane(support_plane_cam, center)
+    table = None if support_plane_cam is None else unit_plane(support_plane_cam, center)
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_NEIGHBOURS))
@@ -324,7 +345,7 @@ def find_mirror_plane(points_cam: np.ndarray, support_plane_cam: np.ndarray | No
         up = np.array([0.0, -1.0, 0.0])
         angles = np.zeros(1)
     else:
-        up, _ = _unit_plane(support_plane_cam, center)
+        up, _ = unit_plane(support_plane_cam, center)
         angles = np.radians(np.arange(0.0, 180.0, ORIENTATION_STEP_DEG))
     e1 = view - (view @ up) * up
     if np.linalg.norm(e1) < 1e-9 * np.linalg.norm(view):
@@ -432,17 +453,3 @@ def _observed_points(points_cam: np.ndarray) -> np.ndarray:
     if len(points) < MIN_POINTS:
         raise ValueError(f"need at least {MIN_POINTS} distinct finite points, got {len(points)}")
     return points
-
-
-def _unit_plane(plane: np.ndarray, camera_center: np.ndarray) -> tuple[np.ndarray, float]:
-    """``(normal, d)`` of a plane ``(a, b, c, d)``, normal unit and towards the camera centre."""
-    plane = np.asarray(plane, dtype=np.float64).reshape(-1)
-    if plane.shape != (4,) or not np.all(np.isfinite(plane)):
-        raise ValueError(f"a plane is 4 finite numbers (a, b, c, d), got {plane}")
-    length = np.linalg.norm(plane[:3])
-    if length < 1e-12:
-        raise ValueError("the support plane's normal (a, b, c) is zero")
-    normal, d = plane[:3] / length, plane[3] / length
-    if normal @ camera_center + d < 0:
-        normal, d = -normal, -d
-    return normal, float(d)

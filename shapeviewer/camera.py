@@ -226,3 +226,70 @@ def depth_edges(depth: np.ndarray, jump: float, radius: int = 1) -> np.ndarray:
     lo = ndimage.minimum_filter(d, size=size, mode="nearest")
     with np.errstate(invalid="ignore"):
         return (depth > 0) & ((hi - lo) > jump)
+
+
+@dataclass(frozen=True)
+class RealSenseNoise:
+    """An Intel RealSense D400 style active-stereo depth model (Ahn et al. 2019; Intel's tuning guide).
+
+    * depth error growing with z^2: Gaussian sigma(z) = ``sigma_a + sigma_b * z^2`` metres
+      (subpixel disparity noise over a 5 cm baseline), correlated over ``blob_px`` pixels as the
+      stereo matcher's window smears it;
+    * flying pixels at depth edges: within ``edge_px`` of a jump over ``edge_jump`` metres, a pixel
+      takes a depth between the near and the far side (``flying``) or is dropped (``edge_dropout``);
+    * holes: blobs of missing pixels covering about ``hole_fraction`` of the image, plus
+      ``dropout`` at random; range limits ``near``-``far``.
+    """
+
+    sigma_a: float = 0.0008
+    sigma_b: float = 0.0025
+    blob_px: float = 2.0
+    edge_jump: float = 0.02
+    edge_px: int = 1
+    flying: float = 0.2
+    edge_dropout: float = 0.4
+    hole_fraction: float = 0.03
+    dropout: float = 0.005
+    near: float = 0.2
+    far: float = 4.0
+
+    def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
+        """A noisy copy of an ideal depth image (metres, 0 = missing)."""
+        from scipy import ndimage
+
+        rng = np.random.default_rng(seed)
+        depth = np.asarray(depth, dtype=np.float32)
+        valid = depth > 0
+        if not valid.any():
+            return np.zeros_like(depth)
+        smooth = ndimage.gaussian_filter(rng.normal(0.0, 1.0, depth.shape).astype(np.float32), self.blob_px)
+        smooth /= max(float(smooth.std()), 1e-9)
+        out = depth + smooth * (self.sigma_a + self.sigma_b * depth**2)
+        # Flying pixels: mix the near and far sides of each edge.
+        edges = depth_edges(depth, self.edge_jump, self.edge_px)
+        d = np.where(valid, depth, np.inf)
+        size = 2 * self.edge_px + 1
+        near_side = ndimage.minimum_filter(d, size=size, mode="nearest")
+        far_side = ndimage.maximum_filter(np.where(valid, depth, 0.0), size=size, mode="nearest")
+        u = rng.random(depth.shape)
+        fly = edges & (u < self.flying) & np.isfinite(near_side) & (far_side > 0)
+        mix = rng.random(depth.shape).astype(np.float32)
+        with np.errstate(invalid="ignore"):  # inf where a window holds no measurement; not used there
+            out = np.where(fly, near_side + mix * (far_side - near_side), out)
+        drop = edges & (u >= self.flying) & (u < self.flying + self.edge_dropout)
+        # Holes: thresholded smooth noise gives blobs of a few to tens of pixels.
+        blobs = ndimage.gaussian_filter(rng.normal(0.0, 1.0, depth.shape).astype(np.float32), 4.0)
+        holes = blobs > np.quantile(blobs, 1.0 - self.hole_fraction)
+        ok = valid & ~drop & ~holes & (rng.random(depth.shape) >= self.dropout)
+        ok &= (out > self.near) & (out < self.far)
+        return np.where(ok, out, 0.0).astype(np.float32)
+
+
+def noise_model(name: str | None):
+    """The sensor model by name: ``kinect``, ``realsense`` or None / ``none`` (an ideal sensor)."""
+    models = {"kinect": KinectNoise, "realsense": RealSenseNoise}
+    if name is None or name == "none":
+        return None
+    if name not in models:
+        raise ValueError(f"unknown sensor noise {name!r}; choose one of {sorted(models)} or 'none'")
+    return models[name]()

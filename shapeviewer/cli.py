@@ -7,7 +7,7 @@
     shapeviewer generate --out DIR [--views N] [--backend process|ray]
     shapeviewer train --data DIR --run DIR [--steps N]
     shapeviewer evaluate-grids --data DIR [--weights PATH]
-    shapeviewer evaluate --out DIR [--views-per-set 50] [--seed 0] [--weights PATH] [--workers N]
+    shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH] [--workers N]
                          [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
 """
 
@@ -93,7 +93,8 @@ def cmd_complete(args) -> int:
         except SegmentTooSmallError as e:
             entry["error"] = str(e)
         report["segments"].append(entry)
-    completions = complete_points([s.points_cam for s in usable], completer, [s.id for s in usable])
+    completions = complete_points([s.points_cam for s in usable], completer, [s.id for s in usable],
+                                  support_plane=seg.plane_cam)
     by_id = {e["id"]: e for e in report["segments"]}
     for s, c in zip(usable, completions):
         e = by_id[s.id]
@@ -113,7 +114,7 @@ def cmd_complete(args) -> int:
         if args.mode == "detailed":
             steps = {}
             t0 = time.perf_counter()
-            mesh = detailed_mesh(c.probabilities, c.frame, s.points_cam, timings=steps)
+            mesh = detailed_mesh(c.probabilities, c.frame, s.points_cam, timings=steps, support_plane=seg.plane_cam)
             c.timings["detailed_mesh"] = time.perf_counter() - t0
             e["detailed_steps"] = steps
             path = out / f"segment_{s.id}_detailed.{args.format}"
@@ -161,7 +162,8 @@ def cmd_objects(args) -> int:
 def cmd_generate(args) -> int:
     from .generate import GenerationConfig, generate
 
-    r = generate(args.out, GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed),
+    r = generate(args.out, GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed,
+                                            scenes=args.scenes),
                  objects=args.objects, workers=args.workers, backend=args.backend)
     print(json.dumps({k: v for k, v in r.items() if k != "errors"}, indent=1))
     for e in r["errors"]:
@@ -173,7 +175,8 @@ def cmd_train(args) -> int:
     from .train import TrainConfig, train
 
     cfg = TrainConfig(arch=args.arch, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                      eval_every=args.eval_every, eval_views=args.eval_views, seed=args.seed, width=args.width)
+                      eval_every=args.eval_every, eval_views=args.eval_views, seed=args.seed, width=args.width,
+                      in_channels=args.in_channels, init=args.init)
     print(json.dumps(train(args.data, args.run, cfg), indent=1))
     return 0
 
@@ -205,7 +208,7 @@ def cmd_evaluate(args) -> int:
         grasps = GraspOptions(methods=tuple(args.grasp_methods or GRASP_METHODS), hand=args.hand,
                               n_grasps=args.n_grasps, budget_seconds=args.grasp_budget)
     r = evaluate(args.out, n_per_set=args.views_per_set, seed=args.seed, weights=args.weights,
-                 workers=args.workers, progress=not args.no_progress, grasps=grasps)
+                 workers=args.workers, progress=not args.no_progress, grasps=grasps, views=args.views)
     print(r["tables_md"])
     print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
     return 0
@@ -254,7 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
     s.add_argument("--out", required=True)
-    s.add_argument("--views", type=int, default=None, help="views per object (default: all 726)")
+    s.add_argument("--views", type=int, default=None,
+                   help="views per object (default: all 726 sphere views, 32 tabletop views)")
+    s.add_argument("--scenes", default="sphere", choices=["sphere", "tabletop"],
+                   help="sphere: the paper's floating views; tabletop: the object on a table among neighbours, "
+                        "a robot's Kinect or RealSense, segmented by the app")
     s.add_argument("--objects", nargs="*", default=None, help="catalogue names (default: all)")
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument("--workers", type=int, default=None)
@@ -263,7 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_generate)
 
     s = sub.add_parser("train", help="train (or resume) a completion CNN")
-    s.add_argument("--data", required=True)
+    s.add_argument("--data", required=True, nargs="+", help="one or more `generate` folders, pooled")
     s.add_argument("--run", required=True)
     s.add_argument("--arch", default="unet3d", choices=["unet3d", "varley2017"])
     s.add_argument("--steps", type=int, default=20000)
@@ -272,11 +279,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--eval-every", type=int, default=500)
     s.add_argument("--eval-views", type=int, default=200)
     s.add_argument("--width", type=int, default=None)
+    s.add_argument("--in-channels", type=int, default=3, choices=[1, 3],
+                   help="unet3d inputs: 1 = occupancy (the paper), 3 = + seen free space and support plane")
+    s.add_argument("--init", default=None, help="weights to start from (a 1-channel unet3d is widened)")
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)
 
     s = sub.add_parser("evaluate-grids", help="Jaccard at 40^3 on the three evaluation sets")
-    s.add_argument("--data", required=True)
+    s.add_argument("--data", required=True, nargs="+")
     s.add_argument("--weights", default=None)
     s.add_argument("--views", type=int, default=500)
     s.add_argument("--seed", type=int, default=0)
@@ -287,6 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")
     s.add_argument("--out", required=True, help="results folder (resumable: finished views are skipped)")
     s.add_argument("--views-per-set", type=int, default=50, help="views per evaluation set (the paper: 50)")
+    s.add_argument("--views", default="paper", choices=["paper", "tabletop"],
+                   help="paper: the paper's three view sets of floating objects; tabletop: objects on a table "
+                        "among neighbours, a robot's Kinect or RealSense, segmented by the app")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")

@@ -58,13 +58,13 @@ from pathlib import Path
 import numpy as np
 
 from . import dataset
+from .viewsets import SET_TITLES, VIEW_SETS, render_view, sample_views
 
 log = logging.getLogger(__name__)
 
-VIEW_SETS = ("training_view", "holdout_view", "holdout_model")
-METHODS = ("Partial", "Mirror", "Ours-fast", "Ours-detailed")
-METRICS = ("jaccard", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
-ROW_FIELDS = ("object", "view", "view_set", "method", *METRICS, "seconds", "error")
+METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
+METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
+ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error")
 # SPEC §7: the paper's figures, {metric: {view_set: (Partial, Mirror, Ours)}}.
 PAPER = {
     "jaccard": {"training_view": (0.118, 0.233, 0.777), "holdout_view": (0.131, 0.239, 0.749),
@@ -76,8 +76,8 @@ PAPER = {
 }
 TABLES = (("I", "jaccard", "Jaccard similarity (higher is better)"),
           ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
-          ("III", "geodesic", "Geodesic divergence (lower is better)"))
-SET_TITLES = {"training_view": "Training Views", "holdout_view": "Holdout Views", "holdout_model": "Holdout Models"}
+          ("III", "geodesic", "Geodesic divergence (lower is better)"),
+          ("J80", "j80", "Jaccard of the solids sampled at 80^3 points, J80 (higher is better)"))
 
 GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
 # Per view and method, means over its grasps (the keys of a view's "grasps" entries).
@@ -95,78 +95,45 @@ PAPER_GRASP = {
 # SPEC §8: the paper's Table V, real-robot grasp success (15 objects), Partial / Mirror / Ours.
 PAPER_LIFT = (0.714, 0.733, 0.933)
 # The paper's one "Ours" is compared with our detailed mesh; -1: the paper has no such column.
-PAPER_COLUMN = {"Partial": 0, "Mirror": 1, "Ours-fast": -1, "Ours-detailed": 2}
+PAPER_COLUMN = {"Partial": 0, "Mirror": 1, "Hull": -1, "Ours-fast": -1, "Ours-detailed": 2}
 
 
-def _view_count() -> int:
-    from .generate import ORIENTATION_GRID
-
-    return int(np.prod(ORIENTATION_GRID))
-
-
-def sample_views(n_per_set: int = 50, seed: int = 0) -> list[tuple[str, int, str]]:
-    """A seeded sample of ``n_per_set`` distinct views per evaluation set: ``(object, view, view_set)``.
-
-    Holdout-model views: a holdout object, then a view, uniformly. Training/holdout views: a
-    training object, then a view, until the view's :func:`dataset.view_split` is the wanted set.
-    """
-    rng = np.random.default_rng([seed, 4])
-    names = sorted(e.name for e in dataset.catalogue())
-    by_split = {"train": [n for n in names if dataset.model_split(n) == "train"],
-                "holdout_model": [n for n in names if dataset.model_split(n) == "holdout_model"]}
-    total = _view_count()
-    out: list[tuple[str, int, str]] = []
-    for view_set in VIEW_SETS:
-        pool = by_split["holdout_model" if view_set == "holdout_model" else "train"]
-        if not pool:
-            raise ValueError(f"no catalogue object for {view_set}")
-        chosen: set[tuple[str, int]] = set()
-        for _ in range(1000 * max(n_per_set, 1)):
-            if len(chosen) >= n_per_set:
-                break
-            name = pool[int(rng.integers(len(pool)))]
-            view = int(rng.integers(total))
-            if (name, view) not in chosen and dataset.view_split(name, view) == view_set:
-                chosen.add((name, view))
-                out.append((name, view, view_set))
-    return out
+def paper_figure(metric: str, view_set: str, method: str) -> float:
+    """The paper's Table I-III figure for a cell (NaN where the paper has none)."""
+    col = PAPER_COLUMN.get(method, -1)
+    row = PAPER.get(metric, {}).get(view_set)
+    return math.nan if row is None or col < 0 else row[col]
 
 
 def _stem(name: str, view: int) -> str:
     return f"{name.replace('/', '__')}__{view:03d}"
 
 
-def render_eval_view(name: str, view: int, seed: int = 0):
-    """``(points_cam, truth_mesh_cam)`` of one view, rendered as the training data is."""
-    from .camera import Intrinsics, KinectNoise, RaycastRenderer
-    from .generate import noise_seed, object_mesh, render_view, view_pose
-
-    mesh = object_mesh(name)
-    T = view_pose(name, view, seed)
-    _, points = render_view(RaycastRenderer([mesh]), T, Intrinsics.kinect(), KinectNoise(), noise_seed(seed, view))
-    truth = mesh.copy()
-    truth.apply_transform(T)
-    return points, truth
-
-
 def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: int = 0,
                   view_set: str | None = None) -> list[dict]:
-    """All four methods on one view: one row per method (a failing method records its error)."""
-    from .baselines import mirror_mesh, partial_mesh
+    """Every method on one view: one row per method (a failing method records its error).
+
+    Tabletop views give the support plane the segmentation found to Mirror and to our completion.
+    """
+    from .baselines import hull_mesh, mirror_mesh, partial_mesh
     from .metrics import completion_metrics
     from .reconstruct import detailed_mesh, fast_mesh
-    from .voxel import partial_to_grid
+    from .voxel import context_grids, partial_to_grid
 
     view_set = view_set or dataset.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
     mesh_dir.mkdir(parents=True, exist_ok=True)
     stem = _stem(name, view)
-    base = {"object": name, "view": int(view), "view_set": view_set}
+    base = {"object": name, "view": int(view), "view_set": view_set, "kind": dataset.shape_kind(name), "sensor": ""}
     try:
-        points, truth = render_eval_view(name, view, seed)
+        observed = render_view(name, view, view_set, seed)
     except Exception as e:  # unrenderable view: every method records it
         return [{**base, "method": m, **{k: math.nan for k in METRICS}, "seconds": math.nan,
                  "error": f"render: {e}"} for m in METHODS]
+    points, truth, plane = observed.points_cam, observed.truth_cam, observed.support_plane
+    base["sensor"] = observed.sensor
+    # Carried by the rows to the view's record (see view_record), where the grasp stage finds it.
+    base["support_plane"] = None if plane is None else [float(v) for v in plane]
     truth.export(mesh_dir / f"{stem}__truth.ply")
     if len(points):
         import trimesh
@@ -179,7 +146,7 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
         if not cnn:
             t0 = time.perf_counter()
             x, frame = partial_to_grid(points)
-            probs = completer.predict(x)
+            probs = completer.predict(x, context=context_grids(points, frame, plane))
             cnn.update(probs=probs, frame=frame, seconds=time.perf_counter() - t0)
         return cnn
 
@@ -191,7 +158,8 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
     def ours_detailed():
         c = cnn_output()
         t0 = time.perf_counter()
-        return detailed_mesh(c["probs"], c["frame"], points), c["seconds"] + time.perf_counter() - t0
+        return (detailed_mesh(c["probs"], c["frame"], points, support_plane=plane),
+                c["seconds"] + time.perf_counter() - t0)
 
     def timed(fn):
         def run():
@@ -200,7 +168,8 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
         return run
 
     methods = {"Partial": timed(lambda: partial_mesh(points)),
-               "Mirror": timed(lambda: mirror_mesh(points, None)),
+               "Mirror": timed(lambda: mirror_mesh(points, plane)),
+               "Hull": timed(lambda: hull_mesh(points)),
                "Ours-fast": ours_fast, "Ours-detailed": ours_detailed}
     rows = []
     for method, run in methods.items():
@@ -239,7 +208,7 @@ def _mesh_files(out_dir, stem: str) -> dict[str, str]:
 def view_record(out_dir, name: str, view: int, view_set: str, seed: int, rows: list[dict]) -> dict:
     """A view's record, as saved in ``views/<stem>.json``::
 
-        {"object", "view", "view_set", "seed",
+        {"object", "view", "view_set", "seed", "support_plane": [a, b, c, d] (camera frame) or None,
          "files": {"truth": "meshes/..", "points": "meshes/..", "<method>": "meshes/.."},
          "rows": [completion rows, ROW_FIELDS],
          "grasps": [one entry per (method, hand), see grasp_view]}
@@ -247,7 +216,9 @@ def view_record(out_dir, name: str, view: int, view_set: str, seed: int, rows: l
     ``files`` lists only meshes that exist (a failed method has none); paths are relative to
     ``out_dir``.
     """
+    planes = [r.pop("support_plane", None) for r in rows]
     return {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed),
+            "support_plane": next((p for p in planes if p is not None), None),
             "files": _mesh_files(out_dir, _stem(name, view)), "rows": rows, "grasps": []}
 
 
@@ -322,13 +293,24 @@ def plan_seed(seed: int, name: str, view: int) -> int:
     return int(np.random.SeedSequence([seed, zlib.crc32(name.encode()), int(view), 13]).generate_state(1)[0])
 
 
-def _world_mesh(path: Path):
-    """A saved camera-frame mesh moved into the evaluation world frame (metres)."""
+def _world_mesh(path: Path, T_world_cam: np.ndarray = T_WORLD_CAM):
+    """A saved camera-frame mesh moved into a world frame (metres)."""
     import trimesh
 
     mesh = trimesh.load(path, force="mesh")
-    mesh.apply_transform(T_WORLD_CAM)
+    mesh.apply_transform(T_world_cam)
     return mesh
+
+
+def grasp_world(record: dict) -> tuple[np.ndarray, bool]:
+    """``(T_world_cam, table)`` of a view's grasp stage: the table frame of the support plane the
+    segmentation found (z up, the table at z = 0) with the table in the world, or, for a floating
+    object, the evaluation world frame ``T_WORLD_CAM`` without a table."""
+    if record.get("support_plane") is None:
+        return T_WORLD_CAM, False
+    from .segment import table_frame
+
+    return table_frame(np.asarray(record["support_plane"], dtype=np.float64)), True
 
 
 def grasp_rows(base: dict, grasps, executions) -> list[dict]:
@@ -390,14 +372,17 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
     if missing:
         entry["error"] = f"no {' or '.join(missing)} mesh"
         return entry
+    T_world_cam, table = grasp_world(record)
     try:
-        completion = _world_mesh(out / record["files"][method])
-        truth = _world_mesh(out / record["files"]["truth"])
+        completion = _world_mesh(out / record["files"][method], T_world_cam)
+        truth = _world_mesh(out / record["files"]["truth"], T_world_cam)
+        if table:  # the estimated table may sit a few mm high: the true object must not start inside it
+            truth.apply_translation([0.0, 0.0, max(0.0, -float(truth.bounds[0, 2]))])
         t0 = time.perf_counter()
-        result = plan(completion, options.hand, options.n_grasps, seed=seed, table=False,
+        result = plan(completion, options.hand, options.n_grasps, seed=seed, table=table,
                       budget_seconds=options.budget_seconds, settings=options.settings or PlanSettings())
         t1 = time.perf_counter()
-        executions = execute_grasps(result.grasps, truth, table=False, lift=True)
+        executions = execute_grasps(result.grasps, truth, table=table, lift=True)
         t2 = time.perf_counter()
     except Exception as e:  # one mesh the planner cannot handle must not stop the run
         entry["error"] = f"{type(e).__name__}: {e}"
@@ -405,8 +390,9 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         return entry
     rel = grasp_file(stem, method, options.hand)
     meta = {"object": name, "view": view, "view_set": record["view_set"], "method": method,
-            "frame": GRASP_FRAME, "T_world_cam": T_WORLD_CAM.tolist(), "planned_on": record["files"][method],
-            "executed_on": record["files"]["truth"], "table": False, "plan_seed": seed,
+            "frame": GRASP_FRAME if not table else "table frame of the segmentation's support plane (z up, table at z = 0)",
+            "T_world_cam": T_world_cam.tolist(), "planned_on": record["files"][method],
+            "executed_on": record["files"]["truth"], "table": table, "plan_seed": seed,
             "plan_stats": {"evaluations": result.stats.evaluations, "simulated": result.stats.simulated,
                            "seconds": result.stats.seconds, "cancelled": result.stats.cancelled}}
     path = out / rel
@@ -495,10 +481,11 @@ def _upgrade_old_views(out: Path, views: list[tuple[str, int, str]], seed: int) 
 
 
 def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=None, workers: int | None = None,
-             progress: bool = True, grasps: GraspOptions | bool | None = None) -> dict:
+             progress: bool = True, grasps: GraspOptions | bool | None = None, views: str = "paper") -> dict:
     """Run the test set (resumable), then write ``rows.csv``, ``tables.md`` and ``tables.csv``
     (and with ``grasps``, ``grasp_rows.csv`` and Tables IV/V).
 
+    ``views``: ``paper`` (the paper's three view sets) or ``tabletop`` (:mod:`shapeviewer.viewsets`).
     ``grasps``: True or a :class:`GraspOptions` adds the grasp stage; finished completions are
     read from ``meshes/``, never recomputed. Returns ``{"computed", "skipped", "rows", "summary",
     "grasp_rows", "grasp_summary", "tables_md", "seconds"}``; ``summary`` is ``{view_set:
@@ -509,7 +496,7 @@ def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    views = sample_views(n_per_set, seed)
+    views = sample_views(n_per_set, seed, views)
     _upgrade_old_views(out, views, seed)
 
     def needs_work(n: str, v: int) -> bool:
@@ -544,7 +531,7 @@ def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=No
     g_summary = summarize_grasps(records, g_rows)
     if g_rows or any(rec["grasps"] for rec in records):
         _write_csv(out / "grasp_rows.csv", GRASP_ROW_FIELDS, g_rows)
-    md = tables_markdown(summary, n_per_set=n_per_set, seed=seed)
+    md = tables_markdown(summary, n_per_set=n_per_set, seed=seed) + kind_table_markdown(rows)
     if g_summary:
         md += grasp_tables_markdown(g_summary)
     (out / "tables.md").write_text(md)
@@ -633,21 +620,22 @@ def tables_markdown(summary: dict, n_per_set: int | None = None, seed: int | Non
         lines += [f"{n_per_set} views per set, seed {seed}. Our means, then the paper's figures (theirs, on their data, "
                   "SPEC §7; the paper has one \"Ours\"). Means over views where the method succeeded; "
                   "n = successes/views.", ""]
+    sets = [s for s in VIEW_SETS if any(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS)]
     for number, metric, title in TABLES:
         lines += [f"## Table {number}: {title}", "",
                   "| View set | " + " | ".join(METHODS) + " | paper Partial | paper Mirror | paper Ours |",
                   "|---" * (len(METHODS) + 4) + "|"]
-        for s in VIEW_SETS:
+        for s in sets:
             cells = [f"{_fmt(summary[s][m][metric], metric)} (n={summary[s][m]['n']}/"
                      f"{summary[s][m]['n'] + summary[s][m]['failed']})" for m in METHODS]
-            paper = [_fmt(v, metric) for v in PAPER[metric][s]]
+            paper = [_fmt(paper_figure(metric, s, m), metric) for m in ("Partial", "Mirror", "Ours-detailed")]
             lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
         lines.append("")
     lines += ["## Mean completion time, seconds (all view sets)", "", "| " + " | ".join(METHODS) + " |",
               "|---" * len(METHODS) + "|"]
     times = []
     for m in METHODS:
-        vals = [(summary[s][m]["seconds"], summary[s][m]["n"]) for s in VIEW_SETS if summary[s][m]["n"]]
+        vals = [(summary[s][m]["seconds"], summary[s][m]["n"]) for s in sets if summary[s][m]["n"]]
         n = sum(c for _, c in vals)
         times.append(f"{sum(v * c for v, c in vals) / n:.2f}" if n else "–")
     lines += ["| " + " | ".join(times) + " |", "",
@@ -655,12 +643,35 @@ def tables_markdown(summary: dict, n_per_set: int | None = None, seed: int | Non
     return "\n".join(lines)
 
 
+def kind_table_markdown(rows: list[dict]) -> str:
+    """J80 and mean surface distance per view set and shape kind (:func:`dataset.shape_kind`), so
+    that a weak family shows; empty when the rows carry no kinds."""
+    kinds = sorted({r.get("kind", "") for r in rows} - {""})
+    if not kinds:
+        return ""
+    lines = ["## Per shape kind: J80 / mean surface distance (mm)", "",
+             "| View set | kind | views | " + " | ".join(METHODS) + " |", "|---" * (len(METHODS) + 3) + "|"]
+    for s in VIEW_SETS:
+        for k in kinds:
+            sel = [r for r in rows if r["view_set"] == s and r.get("kind") == k]
+            if not sel:
+                continue
+            cells = []
+            for m in METHODS:
+                ok = [r for r in sel if r["method"] == m and not r["error"]]
+                cells.append(f"{_fmt(_nanmean(r['j80'] for r in ok), 'j80')} / "
+                             f"{_fmt(_nanmean(r['hausdorff_mean_mm'] for r in ok), 'hausdorff')}" if ok else "–")
+            lines.append(f"| {SET_TITLES[s]} | {k} | {len({(r['object'], r['view']) for r in sel})} | "
+                         + " | ".join(cells) + " |")
+    return "\n".join(lines + [""])
+
+
 def _num(v: float, digits: int = 2, scale: float = 1.0, suffix: str = "") -> str:
     return "–" if v is None or math.isnan(v) else f"{scale * v:.{digits}f}{suffix}"
 
 
 def _paper_grasp(quantity: str, view_set: str, method: str) -> float:
-    col = PAPER_COLUMN[method]
+    col = PAPER_COLUMN.get(method, -1)
     row = PAPER_GRASP[quantity].get(view_set)
     return math.nan if row is None or col < 0 else row[col]
 
@@ -683,7 +694,7 @@ def grasp_tables_markdown(g_summary: dict) -> str:
             lines += [f"## Table {number}: {title}", "",
                       "| View set | " + " | ".join(methods) + " | paper Partial | paper Mirror | paper Ours |",
                       "|---" * (len(methods) + 4) + "|"]
-            for s in VIEW_SETS:
+            for s in (s for s in VIEW_SETS if by_set[s]):
                 cells = [f"{_num(c[key], digits)} / {_num(c[key + '_median'], digits)} (n={c['grasps']})"
                          if (c := by_set[s].get(m)) else "–" for m in methods]
                 paper = [_num(_paper_grasp(key, s, m), digits) for m in paper_methods]
@@ -691,7 +702,7 @@ def grasp_tables_markdown(g_summary: dict) -> str:
             lines.append("")
         lines += ["## Table V analogue: simulated lift success, all grasps / best grasp per view (higher is better)",
                   "", "| View set | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
-        for s in (*VIEW_SETS, "all"):
+        for s in (*(s for s in VIEW_SETS if by_set[s]), "all"):
             cells = [f"{_num(c['lift_success'], 1, 100, '%')} / {_num(c['lift_success_best'], 1, 100, '%')} "
                      f"(n={c['grasps']}/{c['views']})" if (c := by_set[s].get(m)) else "–" for m in methods]
             lines.append(f"| {SET_TITLES.get(s, 'All views')} | " + " | ".join(cells) + " |")
@@ -727,12 +738,13 @@ def write_tables_csv(summary: dict, path: Path, g_summary: dict | None = None) -
     views whose grasp stage failed). Cells a row does not have are blank."""
     rows = []
     for s in VIEW_SETS:
-        for i, m in enumerate(METHODS):
+        for m in METHODS:
             c = summary[s][m]
-            paper_i = min(i, 2)  # the paper has one "Ours" figure for both of our meshes
+            if not c["n"] + c["failed"]:
+                continue
             rows.append({"table": "I-III", "view_set": s, "method": m, "n": c["n"], "failed": c["failed"],
                          **{k: c[k] for k in (*METRICS, "seconds")},
-                         **{f"paper_{k}": PAPER[k][s][paper_i] for k in ("jaccard", "hausdorff_mean_mm", "geodesic")}})
+                         **{f"paper_{k}": paper_figure(k, s, m) for k in ("jaccard", "hausdorff_mean_mm", "geodesic")}})
     for hand, by_set in (g_summary or {}).items():
         for s, cells in by_set.items():
             for m, c in cells.items():

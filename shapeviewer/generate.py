@@ -6,8 +6,16 @@ noise), 0.6-1.2 m away. X is the visible points voxelized with :func:`voxel.part
 Y is every voxel the solid object touches, in the same grid frame. Pairs with fewer than 100
 occupied X voxels, or with under 80% of X inside Y, are rejected (the paper's rule).
 
-Output: one shard per object, ``<out>/shards/<name>.npz`` with bit-packed X and Y and per-view
-metadata, and ``<out>/manifest.json``. Generation is resumable (finished shards are skipped).
+With ``scenes="tabletop"`` the views are :mod:`shapeviewer.tabletop` views instead: the object
+resting on a table among neighbours, a robot's camera (Kinect or RealSense noise), the segment cut
+by the app's own segmentation and the support plane it found; the 80% rule then allows one voxel
+of slack (segments carry flying pixels and a little of their neighbours).
+
+Every example also stores the context channels of :func:`voxel.context_grids` (seen free space,
+under the support plane), which a context-aware network reads.
+
+Output: one shard per object, ``<out>/shards/<name>.npz`` with bit-packed X, Y and context and
+per-view metadata, and ``<out>/manifest.json``. Generation is resumable (finished shards are skipped).
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ import numpy as np
 
 from . import dataset
 from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
-from .voxel import GRID_DIM, partial_to_grid, points_to_grid, solid_grid, surface_samples
+from .voxel import GRID_DIM, context_grids, partial_to_grid, points_to_grid, solid_grid, surface_samples
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +46,7 @@ class GenerationConfig:
     views: int | None = None  # views per object (a seeded subset of the 726); None = all
     noise: bool = True
     seed: int = 0
+    scenes: str = "sphere"  # "sphere": the paper's floating views; "tabletop": robot views of a table
 
 
 def orientation(view: int) -> np.ndarray:
@@ -107,41 +116,88 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
     if shard.exists():
         with np.load(shard) as z:
             return {"name": name, "kept": int(len(z["views"])), "skipped": True}
+    if config.scenes not in ("sphere", "tabletop"):
+        raise ValueError(f"unknown scenes {config.scenes!r} (use 'sphere' or 'tabletop')")
     t0 = time.perf_counter()
+    views = _tabletop_examples(name, config) if config.scenes == "tabletop" else _sphere_examples(name, config)
+    rows, rejected = [], {"few_voxels": 0, "outside": 0, "no_view": 0}
+    for r in views:
+        if isinstance(r, str):
+            rejected[r] += 1
+        else:
+            rows.append(r)
+    shard.parent.mkdir(parents=True, exist_ok=True)
+    tmp = shard.with_name(shard.stem + ".tmp.npz")
+    packed = GRID_DIM**3 // 8
+    stack = lambda k, shape, dtype: np.array([r[k] for r in rows], dtype).reshape(shape)  # noqa: E731
+    n = len(rows)
+    np.savez(tmp, x=stack("x", (n, packed), np.uint8), y=stack("y", (n, packed), np.uint8),
+             free=stack("free", (n, packed), np.uint8), below=stack("below", (n, packed), np.uint8),
+             views=stack("view", (n,), np.int32), center=stack("center", (n, 3), np.float64),
+             voxel_size=stack("voxel_size", (n,), np.float64), T_cam_obj=stack("T", (n, 3, 4), np.float64),
+             plane=stack("plane", (n, 4), np.float64))
+    os.replace(tmp, shard)
+    return {"name": name, "kept": n, "rejected": rejected, "seconds": time.perf_counter() - t0, "skipped": False}
+
+
+def _example(view: int, x: np.ndarray, y: np.ndarray, context: np.ndarray, frame, T: np.ndarray,
+             plane: np.ndarray | None) -> dict:
+    return {"view": int(view), "x": np.packbits(x.ravel()), "y": np.packbits(y.ravel()),
+            "free": np.packbits(context[0].ravel()), "below": np.packbits(context[1].ravel()),
+            "center": frame.center, "voxel_size": frame.voxel_size, "T": T[:3, :],
+            "plane": np.full(4, np.nan) if plane is None else np.asarray(plane, np.float64)}
+
+
+def _sphere_examples(name: str, config: GenerationConfig):
+    """The paper's views: the object floating alone on the roll-pitch-yaw grid (yields examples or
+    the reason a view was rejected)."""
     mesh = object_mesh(name)
     renderer = RaycastRenderer([mesh])
     intr = Intrinsics.kinect()
     noise = KinectNoise() if config.noise else None
     surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
-    X, Y, meta = [], [], []
-    rejected = {"few_voxels": 0, "outside": 0}
     for view in view_indices(name, config):
         T = view_pose(name, int(view), config.seed)
         ideal, measured = render_view(renderer, T, intr, noise, noise_seed(config.seed, view))
         if len(measured) < 10 or len(ideal) < 10:
-            rejected["few_voxels"] += 1
+            yield "few_voxels"
             continue
         x, frame = partial_to_grid(measured)
         if x.sum() < MIN_X_VOXELS:
-            rejected["few_voxels"] += 1
+            yield "few_voxels"
             continue
         y = solid_grid(mesh, frame, T, surface_points=surface, scene=renderer.scene)
         # The paper's 80% rule judges the view's geometry, so it looks at the noise-free points:
         # sensor noise alone pushes some measured points into the voxels just outside Y.
         x_ideal = points_to_grid(ideal, frame)
         if (x_ideal & y).sum() < MIN_X_INSIDE_Y * x_ideal.sum():
-            rejected["outside"] += 1
+            yield "outside"
             continue
-        X.append(np.packbits(x.ravel()))
-        Y.append(np.packbits(y.ravel()))
-        meta.append((int(view), *frame.center, frame.voxel_size, *T[:3, :].ravel()))
-    shard.parent.mkdir(parents=True, exist_ok=True)
-    tmp = shard.with_name(shard.stem + ".tmp.npz")
-    m = np.array(meta, dtype=np.float64).reshape(-1, 17)
-    np.savez(tmp, x=np.array(X, np.uint8).reshape(-1, GRID_DIM**3 // 8), y=np.array(Y, np.uint8).reshape(-1, GRID_DIM**3 // 8),
-             views=m[:, 0].astype(np.int32), center=m[:, 1:4], voxel_size=m[:, 4], T_cam_obj=m[:, 5:17].reshape(-1, 3, 4))
-    os.replace(tmp, shard)
-    return {"name": name, "kept": len(X), "rejected": rejected, "seconds": time.perf_counter() - t0, "skipped": False}
+        yield _example(view, x, y, context_grids(measured, frame), frame, T, None)
+
+
+def _tabletop_examples(name: str, config: GenerationConfig):
+    """Tabletop views (:func:`tabletop.render_tabletop_view`), ``config.views`` of them (default 32)."""
+    from scipy import ndimage
+
+    from .tabletop import centred_mesh, render_tabletop_view
+
+    mesh = centred_mesh(name)
+    surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
+    for view in range(config.views or 32):
+        v = render_tabletop_view(name, view, seed=config.seed)
+        if v is None:
+            yield "no_view"
+            continue
+        x, frame = partial_to_grid(v.points_cam)
+        if x.sum() < MIN_X_VOXELS:
+            yield "few_voxels"
+            continue
+        y = solid_grid(mesh, frame, v.T_cam_obj, surface_points=surface)
+        if (x & ndimage.binary_dilation(y)).sum() < MIN_X_INSIDE_Y * x.sum():
+            yield "outside"
+            continue
+        yield _example(view, x, y, context_grids(v.points_cam, frame, v.plane_cam), frame, v.T_cam_obj, v.plane_cam)
 
 
 def _task(args):
@@ -221,7 +277,7 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
             examples[dataset.view_split(name, v)] += 1
         shards.append({"file": f"shards/{p.name}", "object": name, "split": dataset.model_split(name), "views": len(views)})
     manifest = {"version": 1, "grid": GRID_DIM, "orientation_grid": ORIENTATION_GRID,
-                "config": {"views": config.views, "noise": config.noise, "seed": config.seed},
+                "config": {"views": config.views, "noise": config.noise, "seed": config.seed, "scenes": config.scenes},
                 "camera": Intrinsics.kinect().to_dict(), "examples": examples, "shards": shards}
     (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return manifest

@@ -80,16 +80,19 @@ def depth_to_space(x: torch.Tensor) -> torch.Tensor:
 class UNet3D(nn.Module):
     """A compact 3D U-Net working at 20^3 -> 10^3 -> 5^3 and back, with skip connections.
 
-    The 40^3 input is folded into 8 channels at 20^3 (space-to-depth) and the output unfolded the
-    same way, so no convolution runs at full resolution: that is what makes it fast on a CPU.
+    Input channel 0 is the observed occupancy; with ``in_channels`` 3, channels 1-2 are the context
+    of :func:`~shapeviewer.voxel.context_grids` (seen free space, under the support plane).
+    The 40^3 input is folded into 8 channels per input channel at 20^3 (space-to-depth) and the
+    output unfolded the same way, so no convolution runs at full resolution: that is what makes it fast on a CPU.
     The skips carry the observed surface; the 5^3 bottleneck's receptive field covers the whole
     grid, so the network can reason about the object's overall shape.
     """
 
-    def __init__(self, width: int = 16) -> None:
+    def __init__(self, width: int = 16, in_channels: int = 1) -> None:
         super().__init__()
         w1, w2, w3 = width, 2 * width, 4 * width
-        self.enc1 = nn.Sequential(_conv(8, w1), _conv(w1, w1))
+        self.in_channels = in_channels
+        self.enc1 = nn.Sequential(_conv(8 * in_channels, w1), _conv(w1, w1))
         self.down1 = nn.Sequential(nn.Conv3d(w1, w2, 2, stride=2), nn.ReLU(inplace=True))
         self.enc2 = nn.Sequential(_conv(w2, w2), _conv(w2, w2))
         self.down2 = nn.Sequential(nn.Conv3d(w2, w3, 2, stride=2), nn.ReLU(inplace=True))
@@ -178,19 +181,50 @@ class Completer:
     device: torch.device = field(default_factory=default_device)
     batch_size: int = 32
 
-    def predict(self, grids: np.ndarray) -> np.ndarray:
-        """Occupancy probabilities (float32) for a (40,40,40) or (B,40,40,40) bool occupancy array."""
+    @property
+    def in_channels(self) -> int:
+        """1: occupancy only; 3: occupancy and the two context channels."""
+        return int(self.meta.get("arch_kwargs", {}).get("in_channels", 1))
+
+    def predict(self, grids: np.ndarray, *, context: np.ndarray | None = None) -> np.ndarray:
+        """Occupancy probabilities (float32) for a (40,40,40) or (B,40,40,40) bool occupancy array.
+
+        Args:
+            grids: the observed occupancy, [x, y, z] in the paper's placement.
+            context: optional (2,40,40,40) or (B,2,40,40,40) bool grids of known-empty space
+                (:func:`~shapeviewer.voxel.context_grids`). A context-aware network reads them;
+                either way those voxels are known to be empty, so their probability is set to 0.
+        """
         grids = np.asarray(grids)
         single = grids.ndim == 3
         batch = grids[None] if single else grids
         if batch.ndim != 4 or batch.shape[1:] != (GRID_DIM,) * 3:
             raise ValueError(f"expected a (40,40,40) or (B,40,40,40) grid, got shape {grids.shape}")
+        ctx = None
+        if context is not None:
+            ctx = np.asarray(context, dtype=bool)
+            ctx = ctx[None] if single else ctx
+            if ctx.shape != (len(batch), 2) + (GRID_DIM,) * 3:
+                raise ValueError(f"context must be (B, 2, 40, 40, 40) for {len(batch)} grids, got {np.shape(context)}")
         out = np.empty(batch.shape, dtype=np.float32)
         with torch.inference_mode():
             for i in range(0, len(batch), self.batch_size):
-                x = torch.from_numpy(batch[i:i + self.batch_size].astype(np.float32)).to(self.device)
-                out[i:i + self.batch_size] = torch.sigmoid(self.net(x[:, None]))[:, 0].float().cpu().numpy()
+                x = network_input(batch[i:i + self.batch_size], None if ctx is None else ctx[i:i + self.batch_size],
+                                  self.in_channels)
+                out[i:i + self.batch_size] = torch.sigmoid(self.net(x.to(self.device)))[:, 0].float().cpu().numpy()
+        if ctx is not None:
+            out[ctx.any(axis=1)] = 0.0
         return out[0] if single else out
+
+
+def network_input(grids: np.ndarray, context: np.ndarray | None, in_channels: int) -> torch.Tensor:
+    """(B, in_channels, 40, 40, 40) float32 tensor: occupancy, then the context channels (zeros,
+    i.e. unknown, when ``context`` is None)."""
+    x = torch.zeros((len(grids), in_channels) + grids.shape[1:], dtype=torch.float32)
+    x[:, 0] = torch.from_numpy(np.ascontiguousarray(grids, dtype=np.float32))
+    if in_channels > 1 and context is not None:
+        x[:, 1:] = torch.from_numpy(np.ascontiguousarray(context, dtype=np.float32))
+    return x
 
 
 def save_weights(path: str | Path, net: nn.Module, arch: str, meta: dict | None = None) -> None:

@@ -14,8 +14,8 @@ import numpy as np
 import trimesh
 
 from .model import Completer
-from .reconstruct import fast_mesh
-from .voxel import GridFrame, partial_to_grid
+from .reconstruct import detailed_mesh, fast_mesh
+from .voxel import GridFrame, context_grids, partial_to_grid
 
 MIN_SEGMENT_POINTS = 50
 MIN_SEGMENT_EXTENT = 0.01  # metres
@@ -33,10 +33,13 @@ class Completion:
         segment_id: the segment completed.
         grid_in: (40, 40, 40) bool CNN input, [x, y, z].
         frame: the grid frame (grid coordinates <-> camera metres).
+        context: (2, 40, 40, 40) bool known-empty space (seen free, under the table), [x, y, z]
+            (:func:`~shapeviewer.voxel.context_grids`); the CNN output is 0 there.
+        support_plane: the table ``(a, b, c, d)`` in the camera frame, or None.
         probabilities: (40, 40, 40) float32 CNN output.
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
-        partial_mesh, mirror_mesh: the baselines' meshes of the same segment (camera frame, metres)
+        partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
             once computed.
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
             ``detailed_steps`` is the dict :func:`~shapeviewer.reconstruct.detailed_mesh` fills).
@@ -48,9 +51,12 @@ class Completion:
     frame: GridFrame
     probabilities: np.ndarray
     fast_mesh: trimesh.Trimesh | None
+    context: np.ndarray | None = None
+    support_plane: np.ndarray | None = None
     detailed_mesh: trimesh.Trimesh | None = None
     partial_mesh: trimesh.Trimesh | None = None
     mirror_mesh: trimesh.Trimesh | None = None
+    hull_mesh: trimesh.Trimesh | None = None
     timings: dict = field(default_factory=dict)
     error: str | None = None
 
@@ -73,31 +79,80 @@ def check_segment(points_cam: np.ndarray) -> np.ndarray:
 
 
 def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
-                    segment_ids: list[int] | None = None) -> list[Completion]:
+                    segment_ids: list[int] | None = None, *, support_plane: np.ndarray | None = None
+                    ) -> list[Completion]:
     """Fast-complete several segments (camera-frame points, metres): one batched CNN pass.
+
+    ``support_plane``: the table ``(a, b, c, d)`` in the camera frame (normal towards the camera),
+    or None. With the seen free space of each segment it is the CNN's context, and nothing is
+    completed where the camera saw through or under the table.
 
     Raises :class:`SegmentTooSmallError` if any segment is unusable (check first with
     :func:`check_segment` to skip those).
     """
     ids = list(range(len(segments_points_cam))) if segment_ids is None else list(segment_ids)
     t0 = time.perf_counter()
-    grids, frames = zip(*(partial_to_grid(check_segment(p)) for p in segments_points_cam)) if segments_points_cam else ((), ())
+    pts = [check_segment(p) for p in segments_points_cam]
+    grids, frames = zip(*(partial_to_grid(p) for p in pts)) if pts else ((), ())
+    contexts = [context_grids(p, f, support_plane) for p, f in zip(pts, frames)]
     t1 = time.perf_counter()
-    probs = completer.predict(np.stack(grids)) if grids else np.zeros((0, 40, 40, 40), np.float32)
+    probs = (completer.predict(np.stack(grids), context=np.stack(contexts)) if grids
+             else np.zeros((0, 40, 40, 40), np.float32))
     t2 = time.perf_counter()
     n = max(1, len(grids))
     out = []
-    for sid, g, fr, p in zip(ids, grids, frames, probs):
+    for sid, g, fr, ctx, p in zip(ids, grids, frames, contexts, probs):
         t3 = time.perf_counter()
         try:
             mesh, err = fast_mesh(p, fr), None
         except ValueError as e:
             mesh, err = None, str(e)
         timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
-        out.append(Completion(sid, g, fr, p, mesh, timings=timings, error=err))
+        plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
+        out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err))
     return out
 
 
-def complete_segment(points_cam: np.ndarray, completer: Completer, segment_id: int = 0) -> Completion:
-    """Fast-complete one segment (camera-frame points, metres)."""
-    return complete_points([points_cam], completer, [segment_id])[0]
+def complete(points_cam: np.ndarray, *, support_plane: np.ndarray | None = None, mode: str = "detailed",
+             completer: Completer | None = None) -> trimesh.Trimesh:
+    """Complete one object's points into a closed mesh: the one entry point every caller uses.
+
+    Args:
+        points_cam: (N, 3) the object's observed points, camera optical frame (x right, y down,
+            z forward), metres; non-finite rows are ignored.
+        support_plane: ``(a, b, c, d)`` of the table in the camera frame, ``a x + b y + c z + d = 0``
+            with the normal pointing to the camera's side; None when no table is known (a floating
+            object). The completion then rests on the table and stops there.
+        mode: ``"fast"`` (marching cubes of the CNN output) or ``"detailed"`` (Algorithm 1).
+        completer: the network (default: the shipped model, loaded once and kept).
+
+    Returns:
+        A watertight ``trimesh.Trimesh`` in the camera frame, metres.
+
+    Raises:
+        SegmentTooSmallError: too few points or too small an object to place a grid on.
+        EmptyCompletionError: the network completed nothing.
+        ValueError: an unknown ``mode`` or a malformed ``support_plane``.
+    """
+    if mode not in ("fast", "detailed"):
+        raise ValueError(f"mode must be 'fast' or 'detailed', got {mode!r}")
+    completer = completer or _shipped_completer()
+    c = complete_points([points_cam], completer, support_plane=support_plane)[0]
+    if mode == "fast":
+        if c.fast_mesh is None:
+            from .reconstruct import EmptyCompletionError
+
+            raise EmptyCompletionError(c.error or "the completion is empty")
+        return c.fast_mesh
+    return detailed_mesh(c.probabilities, c.frame, check_segment(points_cam), support_plane=c.support_plane)
+
+
+_SHIPPED: list[Completer] = []
+
+
+def _shipped_completer() -> Completer:
+    if not _SHIPPED:
+        from .model import load_completer
+
+        _SHIPPED.append(load_completer())
+    return _SHIPPED[0]

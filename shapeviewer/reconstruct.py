@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 from skimage import measure
 
-from .voxel import GridFrame
+from .voxel import GridFrame, below_plane, seen_free
 
 OCCUPANCY_LEVEL = 0.5
 # On a binary volume the saddle of every face with two diagonal occupied corners lies exactly on
@@ -240,27 +240,12 @@ def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band:
 
 def _carve_seen_free_space(occ: np.ndarray, origin: np.ndarray, leaf: float,
                            observed_points_cam: np.ndarray) -> np.ndarray:
-    """Empty every voxel the camera saw through: more than one voxel in front of the nearest
-    observed point along its camera ray.
+    """Empty every voxel the camera saw through (:func:`voxel.seen_free` with a one-voxel margin).
 
-    Rays are binned by direction (x/z, y/z) at one voxel's width at the points' median depth.
-    Voxels whose ray bin holds no observed point are kept (the camera saw nothing there).
     ``occ`` is a grid of voxel size ``leaf`` whose voxel 0 starts at ``origin`` (camera metres).
     """
-    pts = observed_points_cam
-    step = leaf / float(np.median(pts[:, 2]))
-    rays = np.floor(pts[:, :2] / pts[:, 2:3] / step).astype(np.int64)
-    lo = rays.min(0)
-    rays -= lo
-    nearest = np.full(rays.max(0) + 1, np.inf)
-    np.minimum.at(nearest, (rays[:, 0], rays[:, 1]), pts[:, 2])
     idx = np.argwhere(occ)
-    centres = origin + (idx + 0.5) * leaf
-    bins = np.floor(centres[:, :2] / centres[:, 2:3] / step).astype(np.int64) - lo
-    inside = ((bins >= 0) & (bins < nearest.shape)).all(axis=1)
-    seen = np.full(len(idx), np.inf)
-    seen[inside] = nearest[bins[inside, 0], bins[inside, 1]]
-    free = centres[:, 2] < seen - leaf
+    free = seen_free(origin + (idx + 0.5) * leaf, observed_points_cam, leaf)
     out = occ.copy()
     out[tuple(idx[free].T)] = False
     return out
@@ -276,7 +261,8 @@ def _drop_specks(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_cam: np.ndarray,
-                  timings: dict | None = None, smooth_iterations: int = SMOOTH_ITERATIONS) -> trimesh.Trimesh:
+                  timings: dict | None = None, smooth_iterations: int = SMOOTH_ITERATIONS, *,
+                  support_plane: np.ndarray | None = None) -> trimesh.Trimesh:
     """Algorithm 1: merge the dense observed points with the up-sampled CNN output, smooth, mesh.
 
     Steps (keys of ``timings``): ``density`` (ratio r), ``upsample`` (corner vote), ``merge``
@@ -289,6 +275,9 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
         frame: the grid frame of the CNN input.
         observed_points_cam: (N, 3) the segment's observed points, camera frame, metres.
         timings: if given, filled with seconds per step of Algorithm 1.
+        support_plane: ``(a, b, c, d)`` of the table in the camera frame (normal towards the
+            camera), or None; merged voxels wholly under it are emptied, so the mesh stops at the
+            table and stays closed.
 
     Returns:
         A closed mesh in the camera optical frame, metres.
@@ -341,6 +330,10 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     cnn = np.zeros(shape, bool)
     cnn[cnn_idx[:, 0], cnn_idx[:, 1], cnn_idx[:, 2]] = True
     grid = _carve_seen_free_space(cnn, origin, leaf, obs)
+    if support_plane is not None:
+        cells = np.argwhere(grid)
+        under = below_plane(origin + (cells + 0.5) * leaf, support_plane, leaf / 2)
+        grid[tuple(cells[under].T)] = False
     grid[obs_idx[:, 0], obs_idx[:, 1], obs_idx[:, 2]] = True
     t["merge"] = time.perf_counter() - t0
 

@@ -52,13 +52,13 @@ from .evaluate import METHODS, METRICS, PAPER_COLUMN, PAPER_GRASP, ROW_FIELDS, S
 log = logging.getLogger(__name__)
 
 INDEX_NAME = "index.sqlite"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 # What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
 KINDS = ("truth", "points", *METHODS)
 # The metrics the browser filters and sorts by, and which way is better.
-HIGHER_IS_BETTER = {"jaccard": True, "hausdorff_mean_mm": False, "hausdorff_max_mm": False,
+HIGHER_IS_BETTER = {"jaccard": True, "j80": True, "hausdorff_mean_mm": False, "hausdorff_max_mm": False,
                     "hausdorff_rms_mm": False, "geodesic": False}
-METRIC_TITLES = {"jaccard": "Jaccard", "hausdorff_mean_mm": "Hausdorff mean (mm)",
+METRIC_TITLES = {"jaccard": "Jaccard", "j80": "J80 (sampled solids)", "hausdorff_mean_mm": "Hausdorff mean (mm)",
                  "hausdorff_max_mm": "Hausdorff max (mm)", "hausdorff_rms_mm": "Hausdorff RMS (mm)",
                  "geodesic": "Geodesic divergence"}
 GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
@@ -71,7 +71,7 @@ CREATE TABLE IF NOT EXISTS objects (name TEXT PRIMARY KEY, split TEXT, source TE
                                     extent_x REAL, extent_y REAL, extent_z REAL, in_catalogue INTEGER);
 CREATE TABLE IF NOT EXISTS views (object TEXT, view INTEGER, view_set TEXT, seed INTEGER, file TEXT,
                                   truth TEXT, points TEXT, PRIMARY KEY (object, view));
-CREATE TABLE IF NOT EXISTS completions (object TEXT, view INTEGER, method TEXT, jaccard REAL,
+CREATE TABLE IF NOT EXISTS completions (object TEXT, view INTEGER, method TEXT, jaccard REAL, j80 REAL,
                                         hausdorff_mean_mm REAL, hausdorff_max_mm REAL, hausdorff_rms_mm REAL,
                                         geodesic REAL, seconds REAL, error TEXT, mesh TEXT,
                                         PRIMARY KEY (object, view, method));
@@ -150,6 +150,7 @@ class CompletionResult:
 
     method: str
     jaccard: float
+    j80: float
     hausdorff_mean_mm: float
     hausdorff_max_mm: float
     hausdorff_rms_mm: float
@@ -416,7 +417,8 @@ class ResultsStore:
                 m = str(r["method"])
                 completions[m] = (name, view, m, *[_db(_num(r.get(k))) for k in METRICS], _db(_num(r.get("seconds"))),
                                   str(r.get("error") or ""), files.get(m))
-            db.executemany("INSERT INTO completions VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", completions.values())
+            slots = ", ".join("?" * (6 + len(METRICS)))
+            db.executemany(f"INSERT INTO completions VALUES ({slots})", completions.values())
             grasps = {}
             for g in parsed["grasps"]:
                 method, hand = str(g.get("method", "")), str(g.get("hand", ""))
@@ -577,7 +579,8 @@ class ResultsStore:
         for r in self._read(sql + " ORDER BY c.object, c.view"):
             if wanted is not None and r[0] not in wanted:
                 continue
-            d = dict(zip(ROW_FIELDS, r))
+            d = dict(zip(("object", "view", "view_set", "method", *METRICS, "seconds", "error"), r))
+            d.update(kind=dataset.shape_kind(d["object"]), sensor="")
             for k in (*METRICS, "seconds"):
                 d[k] = _undb(d[k])
             d["error"] = d["error"] or ""
@@ -781,15 +784,17 @@ def write_view_record(root: str | Path, record: dict) -> Path:
 
 
 # A few objects and views for a first look (``python app.py`` without --results): household YCB
-# objects of both model splits and a pybullet toy, views from all three evaluation sets.
+# objects of both model splits and a pybullet toy, views from all three evaluation sets, and
+# tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
 SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
     ("ycb/021_bleach_cleanser", 0), ("ycb/021_bleach_cleanser", 120),
     ("ycb/006_mustard_bottle", 100), ("ycb/006_mustard_bottle", 420),
     ("ycb/025_mug", 180), ("ycb/025_mug", 0),
     ("ycb/035_power_drill", 300),
     ("pybullet/duck", 0),
+    ("ycb/025_mug", 10_003), ("household/spray_bottle_004", 10_001), ("household/bowl_003", 10_002),
 )
-SAMPLE_VERSION = 1
+SAMPLE_VERSION = 2
 SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
 
 
@@ -830,6 +835,7 @@ def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMP
     sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
     """
     from .evaluate import evaluate_view, grasp_view, load_view, pending_grasps, view_record
+    from .viewsets import view_set_of
 
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -852,7 +858,7 @@ def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMP
                 from .model import load_completer
 
                 completer = load_completer(weights)
-            view_set = dataset.view_split(name, view)
+            view_set = view_set_of(name, view)
             rows = evaluate_view(name, view, completer, root, seed=seed, view_set=view_set)
             record = view_record(root, name, view, view_set, seed, rows)
             write_view_record(root, record)

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 
 from . import dataset
-from .model import build, default_device, save_weights
+from .model import build, default_device, network_input, save_weights
 from .voxel import GRID_DIM
 
 log = logging.getLogger(__name__)
@@ -34,68 +34,97 @@ PROB_CLIP = 1e-6  # predictions clipped to [1e-6, 1 - 1e-6] in the loss, as the 
 LOGIT_CLIP = float(np.log((1 - PROB_CLIP) / PROB_CLIP))
 
 
+PLANE_DROPOUT = 0.2  # share of training examples whose support plane is hidden (callers may not know it)
+
+
 @dataclass
 class GridSet:
-    """Bit-packed (X, Y) pairs: ``x``, ``y`` are (N, 8000) uint8; ``objects``/``views`` identify them."""
+    """Bit-packed examples: ``x``, ``y``, ``free``, ``below`` are (N, 8000) uint8 (X, Y and the two
+    context channels of :func:`voxel.context_grids`); ``objects``/``views`` identify them;
+    ``source`` is the data folder of each."""
 
     x: np.ndarray
     y: np.ndarray
+    free: np.ndarray
+    below: np.ndarray
     objects: np.ndarray
     views: np.ndarray
+    source: np.ndarray
 
     def __len__(self) -> int:
         return len(self.x)
 
-    def grids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Unpacked bool grids (len(idx), 40, 40, 40) of X and Y."""
+    def grids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unpacked bool grids: X and Y (len(idx), 40, 40, 40) and the context (len(idx), 2, 40, 40, 40)."""
         shape = (len(idx),) + (GRID_DIM,) * 3
-        return (np.unpackbits(self.x[idx], axis=1).reshape(shape).astype(bool),
-                np.unpackbits(self.y[idx], axis=1).reshape(shape).astype(bool))
+        unpack = lambda a: np.unpackbits(a[idx], axis=1).reshape(shape).astype(bool)  # noqa: E731
+        return unpack(self.x), unpack(self.y), np.stack([unpack(self.free), unpack(self.below)], axis=1)
 
     def subset(self, idx: np.ndarray) -> GridSet:
-        return GridSet(self.x[idx], self.y[idx], self.objects[idx], self.views[idx])
+        return GridSet(*(getattr(self, f)[idx] for f in ("x", "y", "free", "below", "objects", "views", "source")))
 
 
-def load_grid_sets(data_dir: str | Path) -> dict[str, GridSet]:
-    """All examples of a generated data folder, split into the paper's three evaluation sets."""
-    data_dir = Path(data_dir)
-    manifest_path = data_dir / "manifest.json"
-    if not manifest_path.exists():
-        raise FileNotFoundError(f"{manifest_path} not found: run `shapeviewer generate --out {data_dir}` first")
-    manifest = json.loads(manifest_path.read_text())
+def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
+    """All examples of one or more generated data folders, split into the paper's three evaluation sets.
+
+    Every finished shard counts, so a folder still being generated gives what it has so far.
+    Shards written before the context channels existed load with empty (unknown) context.
+    """
     parts: dict[str, list] = {s: [] for s in SETS}
-    for shard in manifest["shards"]:
-        with np.load(data_dir / shard["file"]) as z:
+    packed = GRID_DIM**3 // 8
+    for data_dir, shard in _shard_files(data_dirs):
+        with np.load(shard) as z:
             x, y, views = z["x"], z["y"], z["views"]
-        name = shard["object"]
+            free = z["free"] if "free" in z else np.zeros_like(x)
+            below = z["below"] if "below" in z else np.zeros_like(x)
+        name = shard.stem.replace("__", "/")
         split = np.array([dataset.view_split(name, int(v)) for v in views])
         for s in SETS:
             m = split == s
             if m.any():
-                parts[s].append((x[m], y[m], np.full(m.sum(), name, dtype=object), views[m]))
+                parts[s].append((x[m], y[m], free[m], below[m], np.full(m.sum(), name, dtype=object), views[m],
+                                 np.full(m.sum(), str(data_dir), dtype=object)))
     out = {}
     for s in SETS:
         if parts[s]:
-            out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(4)))
+            out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(7)))
         else:
-            empty = np.zeros((0, GRID_DIM**3 // 8), np.uint8)
-            out[s] = GridSet(empty, empty.copy(), np.zeros(0, dtype=object), np.zeros(0, np.int32))
+            empty = np.zeros((0, packed), np.uint8)
+            out[s] = GridSet(empty, empty.copy(), empty.copy(), empty.copy(), np.zeros(0, dtype=object),
+                             np.zeros(0, np.int32), np.zeros(0, dtype=object))
     return out
 
 
-def augment(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random symmetries of the image plane (flip x, flip y, swap x and y), applied to X and Y alike.
+def _shard_files(data_dirs: str | Path | list) -> list[tuple[Path, Path]]:
+    """``(folder, shard)`` of every finished shard of the data folders (a folder that ``generate``
+    is still filling gives the shards written so far)."""
+    dirs = [Path(d) for d in (data_dirs if isinstance(data_dirs, (list, tuple)) else [data_dirs])]
+    out = []
+    for d in dirs:
+        shards = sorted(p for p in (d / "shards").glob("*.npz") if not p.name.endswith(".tmp.npz"))
+        if not shards:
+            raise FileNotFoundError(f"no shards in {d}: run `shapeviewer generate --out {d}` first")
+        out += [(d, p) for p in shards]
+    return out
 
-    Each is a mirror of the scene that keeps the camera at the origin looking along +z, and the grid
-    placement is symmetric in x and y (centre at 20), so augmented pairs are valid views.
+
+def augment(x: np.ndarray, y: np.ndarray, ctx: np.ndarray, rng: np.random.Generator
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random symmetries of the image plane (flip x, flip y, swap x and y), applied to X, Y and the
+    context alike, and the support plane hidden in ``PLANE_DROPOUT`` of the examples.
+
+    Each symmetry is a mirror of the scene that keeps the camera at the origin looking along +z,
+    and the grid placement is symmetric in x and y (centre at 20), so augmented pairs are valid views.
     """
     if rng.random() < 0.5:
-        x, y = x[:, ::-1], y[:, ::-1]
+        x, y, ctx = x[:, ::-1], y[:, ::-1], ctx[:, :, ::-1]
     if rng.random() < 0.5:
-        x, y = x[:, :, ::-1], y[:, :, ::-1]
+        x, y, ctx = x[:, :, ::-1], y[:, :, ::-1], ctx[:, :, :, ::-1]
     if rng.random() < 0.5:
-        x, y = x.transpose(0, 2, 1, 3), y.transpose(0, 2, 1, 3)
-    return np.ascontiguousarray(x), np.ascontiguousarray(y)
+        x, y, ctx = x.transpose(0, 2, 1, 3), y.transpose(0, 2, 1, 3), ctx.transpose(0, 1, 3, 2, 4)
+    ctx = np.array(ctx)
+    ctx[rng.random(len(ctx)) < PLANE_DROPOUT, 1] = False
+    return np.ascontiguousarray(x), np.ascontiguousarray(y), ctx
 
 
 def bce_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -127,14 +156,15 @@ def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 
         idx = np.sort(rng.choice(len(gs), size=min(max_views, len(gs)), replace=False))
         js, js_in = [], []
         for i in range(0, len(idx), batch):
-            x, y = gs.grids(idx[i:i + batch])
+            x, y, ctx = gs.grids(idx[i:i + batch])
             if isinstance(net_or_completer, Completer):
-                p = net_or_completer.predict(x)
+                p = net_or_completer.predict(x, context=ctx)
             else:
                 net = net_or_completer
                 dev = next(net.parameters()).device
                 with torch.inference_mode():
-                    p = torch.sigmoid(net(torch.from_numpy(x[:, None].astype(np.float32)).to(dev)))[:, 0].cpu().numpy()
+                    p = torch.sigmoid(net(network_input(x, ctx, getattr(net, "in_channels", 1)).to(dev)))[:, 0].cpu().numpy()
+                p[ctx.any(axis=1)] = 0.0
             js.append(jaccard_grids(p > 0.5, y))
             js_in.append(jaccard_grids(x, y))
         out[s] = {"jaccard": float(np.concatenate(js).mean()), "input_jaccard": float(np.concatenate(js_in).mean()),
@@ -154,10 +184,29 @@ class TrainConfig:
     augment: bool = True
     seed: int = 0
     width: int | None = None  # unet3d width (None = the architecture's default)
+    in_channels: int = 3  # unet3d: 1 = occupancy only (the paper), 3 = with the context channels
+    init: str | None = None  # weights to start from (a 1-channel unet3d is widened, new inputs at zero)
 
 
 def _arch_kwargs(cfg: TrainConfig) -> dict:
-    return {"width": cfg.width} if (cfg.arch == "unet3d" and cfg.width) else {}
+    if cfg.arch != "unet3d":
+        return {}
+    return {**({"width": cfg.width} if cfg.width else {}), "in_channels": cfg.in_channels}
+
+
+def warm_start(net: torch.nn.Module, weights: str | Path) -> None:
+    """Load ``weights`` into ``net``; a first convolution with fewer input channels (a 1-channel
+    unet3d into a 3-channel one) fills the new channels' weights with zeros, so the widened network
+    starts out computing exactly what the old one did."""
+    blob = torch.load(weights, map_location="cpu", weights_only=True)
+    state = net.state_dict()
+    for k, v in blob["state_dict"].items():
+        if k in state and state[k].shape != v.shape and v.ndim == 5 and v.shape[1] < state[k].shape[1]:
+            wide = torch.zeros_like(state[k])
+            wide[:, :v.shape[1]] = v
+            v = wide
+        state[k] = v
+    net.load_state_dict(state)
 
 
 def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
@@ -168,11 +217,15 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
     run_dir.mkdir(parents=True, exist_ok=True)
     device = default_device()
     sets = load_grid_sets(data_dir)
+    n_shards = len(_shard_files(data_dir))
     train_set = sets["training_view"]
     if len(train_set) == 0:
         raise ValueError(f"no training views in {data_dir}")
     torch.manual_seed(cfg.seed)
-    net = build(cfg.arch, **_arch_kwargs(cfg)).to(device)
+    net = build(cfg.arch, **_arch_kwargs(cfg))
+    if cfg.init:
+        warm_start(net, cfg.init)
+    net = net.to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=(0.9, 0.999), eps=1e-8)
     rng = np.random.default_rng(cfg.seed)
     step, best_loss, best_jac, wall = 0, float("inf"), -1.0, 0.0
@@ -185,8 +238,9 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
         step, best_loss, best_jac, wall = ck["step"], ck["best_loss"], ck["best_jaccard"], ck.get("wall", 0.0)
         log.info("resumed %s at step %d", run_dir, step)
         _truncate_log(run_dir / "log.csv", step)
-    (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": str(data_dir)}, indent=1))
-    meta = lambda: {"steps": step, "arch_kwargs": _arch_kwargs(cfg), "data": str(data_dir), "lr": cfg.lr,
+    data_names = [str(d) for d in (data_dir if isinstance(data_dir, (list, tuple)) else [data_dir])]
+    (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": data_names}, indent=1))
+    meta = lambda: {"steps": step, "arch_kwargs": _arch_kwargs(cfg), "data": data_names, "lr": cfg.lr,
                     "batch_size": cfg.batch_size, "wall_seconds": wall, "examples": {s: len(v) for s, v in sets.items()}}
     log_path = run_dir / "log.csv"
     new_log = not log_path.exists()
@@ -202,10 +256,10 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
         while step < cfg.steps:
             t0 = time.perf_counter()
             idx = rng.integers(0, len(train_set), cfg.batch_size)  # with replacement, as the paper
-            x, y = train_set.grids(idx)
+            x, y, ctx = train_set.grids(idx)
             if cfg.augment:
-                x, y = augment(x, y, rng)
-            xt = torch.from_numpy(x[:, None].astype(np.float32)).to(device)
+                x, y, ctx = augment(x, y, ctx, rng)
+            xt = network_input(x, ctx, getattr(net, "in_channels", 1)).to(device)
             yt = torch.from_numpy(y[:, None].astype(np.float32)).to(device)
             loss = bce_loss(net(xt), yt)
             opt.zero_grad(set_to_none=True)
@@ -217,6 +271,10 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
             bar.update(1)
             bar.set_postfix(loss=f"{losses[-1]:.0f}")
             if step % cfg.eval_every == 0 or step == cfg.steps:
+                if len(_shard_files(data_dir)) != n_shards:  # `generate` is still adding shards: use them
+                    sets = load_grid_sets(data_dir)
+                    n_shards, train_set = len(_shard_files(data_dir)), sets["training_view"]
+                    log.info("reloaded data: %s", {s: len(v) for s, v in sets.items()})
                 net.eval()
                 result = evaluate_grids(net, sets, max_views=cfg.eval_views, seed=cfg.seed)
                 net.train()

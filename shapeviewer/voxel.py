@@ -202,3 +202,91 @@ def _finite_points(points: np.ndarray, allow_empty: bool = False) -> np.ndarray:
     if len(pts) == 0 and not allow_empty:
         raise ValueError("the point cloud has no finite points")
     return pts
+
+
+# ----------------------------------------------------------------------------------------------
+# What the camera knows besides the points: free space and the support plane.
+
+CONTEXT_CHANNELS = ("seen_free", "below_plane")
+
+
+def seen_free(centres_cam: np.ndarray, observed_points_cam: np.ndarray, margin: float) -> np.ndarray:
+    """Which camera-frame points lie in space the camera saw through, in front of the surface.
+
+    The observed points are binned by ray direction (x/z, y/z) at ``margin`` metres' width at
+    their median depth; a point is seen free when it lies more than ``margin`` in front of the
+    nearest observed point of its own ray bin and of the 8 bins around it (so the silhouette's
+    edge, where a bin is only partly covered, stays unknown). Bins without points are unknown.
+
+    Args:
+        centres_cam: (M, 3) query points, camera frame, metres (e.g. voxel centres).
+        observed_points_cam: (N, 3) the segment's observed points, camera frame, metres.
+        margin: metres; also the angular bin width at the points' median depth.
+
+    Returns:
+        (M,) bool.
+    """
+    pts = np.asarray(observed_points_cam, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1) & (pts[:, 2] > 0)]
+    centres = np.asarray(centres_cam, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(centres), bool)
+    if len(pts) == 0 or len(centres) == 0:
+        return out
+    from scipy import ndimage
+
+    step = margin / float(np.median(pts[:, 2]))
+    rays = np.floor(pts[:, :2] / pts[:, 2:3] / step).astype(np.int64)
+    lo = rays.min(0) - 1
+    rays -= lo
+    nearest = np.full(rays.max(0) + 2, np.inf)
+    np.minimum.at(nearest, (rays[:, 0], rays[:, 1]), pts[:, 2])
+    # A neighbour without points (inf) must not make its neighbours free: use -inf for unknown.
+    nearest = ndimage.minimum_filter(np.where(np.isfinite(nearest), nearest, -np.inf), size=3, mode="constant",
+                                     cval=-np.inf)
+    ahead = centres[:, 2] > 1e-6
+    bins = np.floor(centres[ahead, :2] / centres[ahead, 2:3] / step).astype(np.int64) - lo
+    inside = ((bins >= 0) & (bins < nearest.shape)).all(axis=1)
+    seen = np.full(len(bins), -np.inf)
+    seen[inside] = nearest[bins[inside, 0], bins[inside, 1]]
+    out[ahead] = centres[ahead, 2] < seen - margin
+    return out
+
+
+def below_plane(centres_cam: np.ndarray, plane_cam: np.ndarray, half_extent: float) -> np.ndarray:
+    """Which axis-aligned cubes (centres (M, 3) camera metres, half side ``half_extent``) lie wholly
+    under the support plane ``(a, b, c, d)`` (unit normal towards the camera, camera frame)."""
+    n, d = unit_plane(plane_cam)
+    height = np.asarray(centres_cam, dtype=np.float64).reshape(-1, 3) @ n + d
+    return height < -half_extent * float(np.abs(n).sum())
+
+
+def unit_plane(plane: np.ndarray, camera_center: np.ndarray = np.zeros(3)) -> tuple[np.ndarray, float]:
+    """``(normal, d)`` of a plane ``(a, b, c, d)``: unit normal, turned towards ``camera_center``
+    (camera frame metres; the camera's own centre by default). ValueError if malformed."""
+    plane = np.asarray(plane, dtype=np.float64).reshape(-1)
+    if plane.shape != (4,) or not np.all(np.isfinite(plane)):
+        raise ValueError(f"a plane is 4 finite numbers (a, b, c, d), got {plane}")
+    length = np.linalg.norm(plane[:3])
+    if length < 1e-12:
+        raise ValueError("the support plane's normal (a, b, c) is zero")
+    normal, d = plane[:3] / length, plane[3] / length
+    if normal @ camera_center + d < 0:
+        normal, d = -normal, -d
+    return normal, float(d)
+
+
+def context_grids(points_cam: np.ndarray, frame: GridFrame, support_plane: np.ndarray | None = None) -> np.ndarray:
+    """The network's context channels: (2, dim, dim, dim) bool, [x, y, z], in ``frame``.
+
+    Channel 0 (``seen_free``): voxels whose centre the camera saw through, more than one voxel in
+    front of the observed surface (:func:`seen_free`). Channel 1 (``below_plane``): voxels wholly
+    under the support plane ``(a, b, c, d)`` (camera frame, normal towards the camera); all False
+    when ``support_plane`` is None (no table known). Both are known to be empty.
+    """
+    idx = np.indices((frame.dim,) * 3).reshape(3, -1).T
+    centres = frame.voxel_centers(idx)
+    out = np.zeros((2, frame.dim**3), bool)
+    out[0] = seen_free(centres, points_cam, frame.voxel_size)
+    if support_plane is not None:
+        out[1] = below_plane(centres, support_plane, frame.voxel_size / 2)
+    return out.reshape((2,) + (frame.dim,) * 3)

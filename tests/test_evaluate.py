@@ -10,6 +10,7 @@ import pytest
 
 from shapeviewer import evaluate as ev
 from shapeviewer.cli import main
+from shapeviewer.viewsets import PAPER_SETS, TABLETOP_SETS, TABLETOP_VIEW_OFFSET
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +23,7 @@ def test_sample_views_seeded_and_split():
     a = ev.sample_views(3, seed=0)
     assert a == ev.sample_views(3, seed=0)
     assert a != ev.sample_views(3, seed=1)
-    assert [s for *_, s in a] == [s for s in ev.VIEW_SETS for _ in range(3)]
+    assert [s for *_, s in a] == [s for s in PAPER_SETS for _ in range(3)]
     from shapeviewer.dataset import view_split
 
     assert all(view_split(n, v) == s and 0 <= v < 726 for n, v, s in a)
@@ -33,8 +34,8 @@ def test_rows_for_every_view_and_method(run):
     out, r = run
     assert r["computed"] == 3 and r["skipped"] == 0
     rows = list(csv.DictReader(open(out / "rows.csv")))
-    assert len(rows) == 12
-    assert {(x["view_set"], x["method"]) for x in rows} == {(s, m) for s in ev.VIEW_SETS for m in ev.METHODS}
+    assert len(rows) == 3 * len(ev.METHODS)
+    assert {(x["view_set"], x["method"]) for x in rows} == {(s, m) for s in PAPER_SETS for m in ev.METHODS}
     for x in rows:
         assert set(ev.ROW_FIELDS) <= set(x)
         if not x["error"]:
@@ -62,7 +63,27 @@ def test_tables_have_paper_numbers(run):
     for paper in ("0.777", "0.749", "0.650", "11.4", "5.9", "0.087", "0.141", "0.494"):
         assert paper in md
     rows = [r for r in csv.DictReader(open(out / "tables.csv")) if r["table"] == "I-III"]
-    assert len(rows) == 12 and {"paper_jaccard", "jaccard", "seconds"} <= set(rows[0])
+    assert len(rows) == 3 * len(ev.METHODS) and {"paper_jaccard", "jaccard", "seconds"} <= set(rows[0])
+
+
+def test_tabletop_views_are_segmented_on_a_table_and_reported_per_kind(tmp_path):
+    views = ev.sample_views(2, seed=0, views="tabletop")
+    assert [s for *_, s in views] == [s for s in TABLETOP_SETS for _ in range(2)]
+    assert all(v >= TABLETOP_VIEW_OFFSET for _, v, _ in views)  # never a view the training data used
+    from shapeviewer.dataset import model_split
+
+    assert [model_split(n) for n, *_ in views] == ["train", "train", "holdout_model", "holdout_model"]
+    r = ev.evaluate(tmp_path, n_per_set=1, seed=0, workers=1, progress=False, views="tabletop")
+    rows = r["rows"]
+    assert {(x["view_set"], x["method"]) for x in rows} == {(s, m) for s in TABLETOP_SETS for m in ev.METHODS}
+    assert all(x["kind"] and x["sensor"] in ("kinect", "realsense") for x in rows)
+    by = {(x["view_set"], x["method"]): x for x in rows}
+    for s in TABLETOP_SETS:
+        assert not by[(s, "Hull")]["error"] and not by[(s, "Ours-detailed")]["error"]
+        # The hull of the visible points is a solid the true object mostly contains, not an empty guess.
+        assert 0.1 < by[(s, "Hull")]["j80"] < 1.0
+    md = (tmp_path / "tables.md").read_text()
+    assert "Per shape kind" in md and "Tabletop, holdout models" in md and "Training Views" not in md
 
 
 def test_ours_beats_partial_on_jaccard(run):
@@ -196,7 +217,7 @@ def test_grasp_tables(grasp_run):
     for paper in ("6.09", "4.56", "16.0", "13.2", "71.4%", "93.3%"):
         assert paper in md
     cells = [x for x in csv.DictReader(open(out / "tables.csv")) if x["table"] == "IV-V"]
-    assert {(x["view_set"], x["method"]) for x in cells} == {(s, m) for s in (*ev.VIEW_SETS, "all") for m in GRASP_METHODS}
+    assert {(x["view_set"], x["method"]) for x in cells} == {(s, m) for s in (*PAPER_SETS, "all") for m in GRASP_METHODS}
     for x in cells:
         for k in ("joint_error_deg", "pose_error_mm", "joint_error_deg_median", "pose_error_mm_median"):
             assert math.isfinite(float(x[k])) and float(x[k]) >= 0

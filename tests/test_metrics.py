@@ -120,6 +120,7 @@ def test_open_meshes(sphere):
 
 def test_completion_metrics_reports_all_three(sphere):
     result = completion_metrics(_sphere(0.06), sphere)
-    assert set(result) == {"jaccard", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic"}
+    assert set(result) == {"jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic"}
+    assert result["j80"] == pytest.approx((5 / 6) ** 3, abs=0.02)  # plain volume overlap, no touched layer
     assert result["hausdorff_mean_mm"] == pytest.approx(10.0, rel=0.02)
     assert 0.5 < result["jaccard"] < 0.65  # (5/6)^3 = 0.579 plus the touched-voxel layer

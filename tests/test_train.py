@@ -6,7 +6,8 @@ import torch
 
 from shapeviewer.generate import GenerationConfig, generate
 from shapeviewer.model import load_completer
-from shapeviewer.train import TrainConfig, augment, bce_loss, evaluate_grids, jaccard_grids, load_grid_sets, train
+from shapeviewer.train import (PLANE_DROPOUT, TrainConfig, augment, bce_loss, evaluate_grids, jaccard_grids,
+                               load_grid_sets, train, warm_start)
 
 
 @pytest.fixture(scope="module")
@@ -37,13 +38,37 @@ def test_a_few_training_steps_lower_the_loss_and_checkpoints_round_trip(tiny_dat
     assert set(r) >= {"holdout_model"}
 
 
-def test_augmentation_keeps_pairs_aligned():
+def test_augmentation_keeps_pairs_and_context_aligned():
     rng = np.random.default_rng(0)
-    x = rng.random((2, 40, 40, 40)) < 0.1
-    y = x | (rng.random((2, 40, 40, 40)) < 0.1)
+    x = rng.random((64, 40, 40, 40)) < 0.1
+    y = x | (rng.random((64, 40, 40, 40)) < 0.1)
+    # The context marks known-empty space: wherever Y is empty, so it never meets Y.
+    ctx = np.stack([~y & (rng.random(y.shape) < 0.5), ~y & (rng.random(y.shape) < 0.5)], axis=1)
+    hidden = 0
     for seed in range(8):
-        xa, ya = augment(x, y, np.random.default_rng(seed))
+        xa, ya, ca = augment(x, y, ctx, np.random.default_rng(seed))
         assert xa.sum() == x.sum() and (xa & ~ya).sum() == 0
+        assert ca[:, 0].sum() == ctx[:, 0].sum() and not (ca & ya[:, None]).any()
+        hidden += int((ca[:, 1].reshape(64, -1).sum(1) == 0).sum())
+    assert 0.1 < hidden / (8 * 64) < 0.3  # the support plane is hidden in about PLANE_DROPOUT of them
+    assert PLANE_DROPOUT == 0.2
+
+
+def test_warm_start_widens_a_one_channel_network_without_changing_it():
+    from shapeviewer.model import UNet3D, network_input
+
+    torch.manual_seed(0)
+    old = UNet3D(in_channels=1)
+    path = tmp = __import__("tempfile").mkdtemp() + "/old.pt"
+    torch.save({"arch": "unet3d", "state_dict": old.state_dict(), "meta": {}}, tmp)
+    new = UNet3D(in_channels=3)
+    warm_start(new, path)
+    x = np.random.default_rng(0).random((2, 40, 40, 40)) < 0.2
+    ctx = np.random.default_rng(1).random((2, 2, 40, 40, 40)) < 0.2
+    with torch.no_grad():
+        a = old(network_input(x, None, 1))
+        b = new(network_input(x, ctx, 3))
+    assert torch.allclose(a, b, atol=1e-5)
 
 
 def test_loss_is_the_papers_summed_bce():

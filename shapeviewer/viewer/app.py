@@ -35,7 +35,7 @@ import viser
 from PIL import Image
 
 from .. import export
-from ..baselines import mirror_mesh, partial_mesh
+from ..baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..camera import Intrinsics, transform_points
 from ..capture import Capture, load_capture
 from ..model import load_completer, training_curves
@@ -57,7 +57,9 @@ OUTPUT_VOXEL_FILL = 0.95
 # Fixed colours for the baselines, so that they never pass for one of our own (segment-coloured) meshes.
 PARTIAL_COLOR = (160, 160, 160)
 MIRROR_COLOR = (110, 150, 215)
-MESH_TITLES = {"detailed": "Detailed mesh", "partial": "Partial baseline", "mirror": "Mirror baseline"}
+HULL_COLOR = (150, 120, 190)
+MESH_TITLES = {"detailed": "Detailed mesh", "partial": "Partial baseline", "mirror": "Mirror baseline",
+               "hull": "Hull baseline"}
 # Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
 ALGORITHM_1_STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge"),
                      ("fill_gaps", "fill gaps"), ("smooth", "smooth"), ("marching_cubes", "marching cubes"))
@@ -262,7 +264,7 @@ class ViewerApp:
 
     def compute_mesh(self, kind: str, segment_id: int | None = None,
                      client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:
-        """Compute, store on the completion and draw a segment's ``detailed``, ``partial`` or ``mirror`` mesh.
+        """Compute, store on the completion and draw a segment's ``detailed``, ``partial``, ``mirror`` or ``hull`` mesh.
 
         The segment (default: the selected one) is fast-completed first if it has no completion yet.
         Returns the camera-frame mesh, or None when it cannot be made or another job is running
@@ -390,7 +392,8 @@ class ViewerApp:
         what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
         self.panel.status.content = f"_Completing {what}..._"
         try:
-            done = complete_points([p for _, p in usable], self.completer, [sid for sid, _ in usable])
+            done = complete_points([p for _, p in usable], self.completer, [sid for sid, _ in usable],
+                                   support_plane=self.scene.segmentation.plane_cam)
             t0 = time.perf_counter()
             for c in done:
                 self._draw_completion(c)
@@ -448,9 +451,11 @@ class ViewerApp:
         """Camera-frame mesh ``kind`` of ``c``'s segment; ``steps`` gets Algorithm 1's step times."""
         points = self.scene.segments[c.segment_id].points_cam
         if kind == "detailed":
-            return detailed_mesh(c.probabilities, c.frame, points, timings=steps)
+            return detailed_mesh(c.probabilities, c.frame, points, timings=steps, support_plane=c.support_plane)
         if kind == "partial":
             return partial_mesh(points)
+        if kind == "hull":
+            return hull_mesh(points)
         return mirror_mesh(points, self.scene.segmentation.plane_cam)
 
     # ------------------------------------------------------------------------------------------
@@ -597,7 +602,7 @@ class ViewerApp:
             return
         color = np.asarray(self.scene.segments[sid].color)
         colors = {"fast": shade(color, 1.35), "detailed": shade(color, 0.7), "partial": PARTIAL_COLOR,
-                  "mirror": MIRROR_COLOR}
+                  "mirror": MIRROR_COLOR, "hull": HULL_COLOR}
         self._add(name, self.server.scene.add_mesh_simple, transform_points(self.scene.T_world_cam, mesh.vertices),
                   np.asarray(mesh.faces), color=colors[kind], cast_shadow=False, receive_shadow=False)
 
@@ -708,7 +713,7 @@ class ViewerApp:
                 self.complete(self.selected, event.client)
 
         p.complete_all.on_click(lambda event: self.complete_all(event.client))
-        for button, kind in ((p.detailed, "detailed"), (p.partial, "partial"), (p.mirror, "mirror")):
+        for button, kind in ((p.detailed, "detailed"), (p.partial, "partial"), (p.mirror, "mirror"), (p.hull, "hull")):
             button.on_click(lambda event, kind=kind: self.compute_mesh(kind, None, event.client))
         p.new_scene.on_click(lambda event: self.load_default(int(p.seed.value), event.client))
         p.load_cloud.on_click(lambda event: self.load_cloud(p.cloud_path.value, event.client))

@@ -38,7 +38,7 @@ import viser
 
 from .. import export
 from ..camera import transform_points
-from ..evaluate import METHODS, PAPER, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS
+from ..evaluate import METHODS, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS, paper_figure
 from ..results import HIGHER_IS_BETTER, KINDS, METRIC_TITLES, CompletionResult, GraspSummary, ObjectSummary, \
     ResultsStore, ViewInfo, build_sample_store, read_mesh, read_points, sample_store_complete, sample_store_dir
 
@@ -58,10 +58,11 @@ DATASET_FOV = math.radians(30.0)
 # occluded back and some of the seen side are visible; elevation clamped to this band.
 OBLIQUE_AZIMUTH = math.radians(35.0)
 ELEVATION_RANGE = (math.radians(15.0), math.radians(45.0))
-TITLES = {"truth": "Ground truth", "points": "Partial view", "Partial": "Partial", "Mirror": "Mirror",
+TITLES = {"truth": "Ground truth", "points": "Partial view", "Partial": "Partial", "Mirror": "Mirror", "Hull": "Hull",
           "Ours-fast": "Ours (fast)", "Ours-detailed": "Ours (detailed)"}
 # Partial and Mirror keep the pipeline tab's baseline colours; ours are warm, the truth neutral.
 COLORS = {"truth": (150, 175, 150), "points": (40, 110, 220), "Partial": (160, 160, 160), "Mirror": (110, 150, 215),
+          "Hull": (150, 120, 190),
           "Ours-fast": (240, 150, 60), "Ours-detailed": (205, 95, 45)}
 PLANNED_HAND = ((70, 140, 255), 0.3)  # colour, opacity: the completion stays visible through the hand
 EXECUTED_HAND = ((250, 90, 60), 0.5)
@@ -69,7 +70,7 @@ SPLITS = {"all objects": None, "training models": "train", "holdout models": "ho
 ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most views": "views"}
 INDEX_ROWS = 12  # rows of the index table in the panel
 # Short column titles for the narrow panel.
-SHORT = {"Partial": "Part.", "Mirror": "Mirr.", "Ours-fast": "Fast", "Ours-detailed": "Det.", "jaccard": "J",
+SHORT = {"Partial": "Part.", "Mirror": "Mirr.", "Hull": "Hull", "Ours-fast": "Fast", "Ours-detailed": "Det.", "jaccard": "J",
          "hausdorff_mean_mm": "H mm", "geodesic": "G"}
 SLIDER = {"jaccard": (0.0, 1.0, 0.01), "hausdorff_mean_mm": (0.0, 100.0, 0.5), "geodesic": (0.0, 1.0, 0.01)}
 POLL_SECONDS = 5.0  # how often the tab looks for new view files
@@ -270,7 +271,8 @@ def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[Completion
     return "\n".join(lines)
 
 
-SET_SHORT = {"training_view": "train", "holdout_view": "h. view", "holdout_model": "h. model"}
+SET_SHORT = {"training_view": "train", "holdout_view": "h. view", "holdout_model": "h. model",
+             "tabletop_train_object": "table", "tabletop_holdout_model": "table h. model"}
 
 
 def summary_markdown(summary: dict, grasps: dict) -> str:
@@ -279,18 +281,21 @@ def summary_markdown(summary: dict, grasps: dict) -> str:
     ``summary``: :meth:`ResultsStore.summary`; ``grasps``: :meth:`ResultsStore.grasp_summary`. The
     "paper" column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
     """
-    counts = [summary[s][METHODS[0]]["n"] + summary[s][METHODS[0]]["failed"] for s in VIEW_SETS]
-    out = [f"Views per set: training views {counts[0]}, holdout views (h. view) {counts[1]}, holdout models "
-           f"(h. model) {counts[2]}. Means over the views where the method succeeded.", ""]
+    counts = {s: max(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS) for s in VIEW_SETS
+              if s in summary}
+    sets = [s for s, n in counts.items() if n]
+    out = ["Views per set: " + ", ".join(f"{SET_TITLES[s]} ({SET_SHORT[s]}) {counts[s]}" for s in sets)
+           + ". Means over the views where the method succeeded.", ""]
     for number, metric, title in (("I", "jaccard", "Jaccard ↑"), ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
                                   ("III", "geodesic", "Geodesic divergence ↓")):
         digits = 1 if "mm" in metric else 3
         out += [f"**Table {number}: {title}**", "",
                 "| set | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
                 "|---|" + "---:|" * (len(METHODS) + 1)]
-        for s in VIEW_SETS:
+        for s in sets:
             cells = [_f(summary[s][m][metric], digits) if summary[s][m]["n"] else "–" for m in METHODS]
-            out.append(f"| {SET_SHORT[s]} | " + " | ".join(cells) + f" | {_f(PAPER[metric][s][2], digits)} |")
+            out.append(f"| {SET_SHORT[s]} | " + " | ".join(cells)
+                       + f" | {_f(paper_figure(metric, s, 'Ours-detailed'), digits)} |")
         out.append("")
     if grasps:
         out += ["**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "

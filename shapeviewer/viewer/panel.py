@@ -14,7 +14,7 @@ from ..export import MESH_FORMATS
 
 NO_SEGMENT = "(none)"
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
-MESH_KINDS = ("fast", "detailed", "partial", "mirror")
+MESH_KINDS = ("fast", "detailed", "partial", "mirror", "hull")
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,7 @@ LAYERS: tuple[Layer, ...] = (
     Layer("partial_mesh", "Partial baseline", False, "Baseline: marching cubes of the observed points alone."),
     Layer("mirror_mesh", "Mirror baseline", False,
           "Baseline: the view mirrored about its best symmetry plane (Bohg et al. 2011)."),
+    Layer("hull_mesh", "Hull baseline", False, "Baseline: the convex hull of the observed points."),
     Layer("grasps", "Grasps", True, "Hands at the grasps planned on a segment's mesh, coloured by epsilon (step 6)."),
 )
 
@@ -61,6 +62,7 @@ class Panel:
     detailed: viser.GuiButtonHandle
     partial: viser.GuiButtonHandle
     mirror: viser.GuiButtonHandle
+    hull: viser.GuiButtonHandle
     timings: viser.GuiMarkdownHandle
     layers: dict[str, viser.GuiCheckboxHandle]
     cloud_colors: viser.GuiDropdownHandle
@@ -76,7 +78,7 @@ class Panel:
     def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
         """Buttons that start a job; disabled while one runs (double clicks would queue jobs)."""
         return (self.new_scene, self.load_cloud, self.complete, self.complete_all, self.detailed, self.partial,
-                self.mirror)
+                self.mirror, self.hull)
 
 
 def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
@@ -100,6 +102,8 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
                                      hint="Baseline: mesh of the selected segment's observed points alone")
             mirror = gui.add_button("Mirror", icon=viser.Icon.FLIP_VERTICAL,
                                     hint="Baseline: the selected segment completed by symmetry (needs a table)")
+            hull = gui.add_button("Hull", icon=viser.Icon.POLYGON,
+                                  hint="Baseline: the convex hull of the selected segment's observed points")
         timings = gui.add_markdown("_No completion yet._")
     with gui.add_folder("Layers"):
         layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint, disabled=not layer.available)
@@ -122,7 +126,7 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
                                       hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
         export_mesh = gui.add_button("Mesh", icon=viser.Icon.DOWNLOAD, hint="The mesh chosen above")
     return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, model_folder, segment, complete,
-                 complete_all, detailed, partial, mirror, timings, layers, cloud_colors, shade_output, export_frame,
+                 complete_all, detailed, partial, mirror, hull, timings, layers, cloud_colors, shade_output, export_frame,
                  mesh_format, export_mesh_kind, export_points, export_grids, export_mesh)
 
 

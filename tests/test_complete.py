@@ -1,0 +1,61 @@
+"""`shapeviewer.complete`: the one entry point, from points (and a table, when known) to a closed mesh."""
+
+import numpy as np
+import pytest
+
+import shapeviewer
+from shapeviewer.baselines import hull_mesh
+from shapeviewer.model import load_completer
+from shapeviewer.pipeline import SegmentTooSmallError
+from shapeviewer.tabletop import render_tabletop_view
+from shapeviewer.voxel import context_grids, partial_to_grid
+
+
+@pytest.fixture(scope="module")
+def can_view():
+    view = render_tabletop_view("ycb/002_master_chef_can", 2, seed=0, sensor="realsense")
+    assert view is not None and view.plane_cam is not None
+    return view
+
+
+@pytest.mark.parametrize("mode", ["fast", "detailed"])
+def test_a_completion_on_a_table_is_closed_stops_at_the_table_and_covers_the_object(can_view, mode):
+    v = can_view
+    mesh = shapeviewer.complete(v.points_cam, support_plane=v.plane_cam, mode=mode)
+    assert mesh.is_watertight and mesh.volume > 0
+    n, d = v.plane_cam[:3], v.plane_cam[3]
+    voxel = partial_to_grid(v.points_cam)[1].voxel_size
+    assert (mesh.vertices @ n + d).min() > -1.5 * voxel  # nothing under the table
+    # It fills the space behind the visible surface: most of the true can is inside it.
+    inside = mesh.contains(v.truth_cam().sample(2000, seed=0) * 0.98 + 0.02 * v.truth_cam().centroid)
+    assert inside.mean() > 0.6
+
+
+def test_a_floating_object_completes_without_a_plane(can_view):
+    mesh = shapeviewer.complete(can_view.points_cam, mode="fast")
+    assert mesh.is_watertight
+
+
+def test_bad_input_says_what_is_wrong(can_view):
+    with pytest.raises(SegmentTooSmallError):
+        shapeviewer.complete(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="mode"):
+        shapeviewer.complete(can_view.points_cam, mode="best")
+    with pytest.raises(ValueError, match="plane"):
+        shapeviewer.complete(can_view.points_cam, support_plane=[0, 0, 0, 1])
+
+
+def test_the_network_never_fills_space_known_to_be_empty(can_view):
+    v = can_view
+    grid, frame = partial_to_grid(v.points_cam)
+    ctx = context_grids(v.points_cam, frame, v.plane_cam)
+    p = load_completer().predict(grid, context=ctx)
+    assert ctx.any() and not (p[ctx.any(axis=0)] > 0).any()
+
+
+def test_hull_baseline_is_the_convex_hull_of_the_points(can_view):
+    mesh = hull_mesh(can_view.points_cam)
+    assert mesh.is_watertight and mesh.is_convex and mesh.volume > 0
+    assert np.all(mesh.contains(can_view.points_cam.mean(axis=0, keepdims=True)))
+    with pytest.raises(ValueError, match="no volume"):
+        hull_mesh(np.c_[np.random.default_rng(0).random((100, 2)), np.zeros(100)])
