@@ -684,7 +684,8 @@ def grasp_tables_markdown(g_summary: dict) -> str:
         methods = [m for m in METHODS if any(m in by_set[s] for s in VIEW_SETS)]
         paper_methods = ("Partial", "Mirror", "Ours-detailed")
         lines += [f"# Grasp results (paper Tables IV and V), {hand} hand", "",
-                  "Grasps planned on each completion (no table, object floating as rendered), every planned grasp "
+                  "Grasps planned on each completion (the paper's views: no table, the object floating as rendered; "
+                  "tabletop views: on the table the segmentation found, in its frame), every planned grasp "
                   "executed on the true mesh with the paper's protocol (SPEC §8) and lifted in simulation. Means "
                   "over all executed grasps of the view set, shown as mean / median (the paper reports means); n = grasps "
                   "(views without a grasp: see the quality table). Paper figures: theirs, on their data; their \"Ours\" beside our Ours-detailed; SPEC §8 "
@@ -711,7 +712,7 @@ def grasp_tables_markdown(g_summary: dict) -> str:
                   + " |", "",
                   "Best grasp: the planner's top-ranked grasp of each view (what a robot would execute; a view "
                   "without any grasp counts as a failure), n = grasps/views. The paper's figures are real-robot "
-                  "trials, ours a pybullet lift of 12 cm with the object free (no table).", "",
+                  "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table).", "",
                   "## Grasp quality and planning (all views)", "",
                   "| Method | epsilon planned | epsilon executed | force closure planned | force closure executed "
                   "| start clear | views without grasp | failed | plan s/view |", "|---" * 9 + "|"]

@@ -40,7 +40,7 @@ import os
 import sqlite3
 import threading
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -879,11 +879,3 @@ def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMP
     (root / SAMPLE_DONE).write_text(json.dumps({"views": views, "grasps": options is not None}))
     step("done")
     return store
-
-
-def object_summary_dict(o: ObjectSummary) -> dict:
-    """An :class:`ObjectSummary` as a JSON-ready dict (NaN as None)."""
-    d = asdict(o)
-    d["means"] = {m: {k: _db(v) for k, v in vals.items()} for m, vals in o.means.items()}
-    d["extents"] = [_db(v) for v in o.extents]
-    return d

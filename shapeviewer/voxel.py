@@ -84,10 +84,6 @@ class GridFrame:
         T[:3, 3] = self.center - self.offset * self.voxel_size
         return T
 
-    def upsampled(self, factor: int) -> GridFrame:
-        """The frame of the same box divided into ``factor`` times more voxels per side."""
-        return GridFrame(self.center, self.voxel_size / factor, self.dim * factor)
-
     def to_dict(self) -> dict:
         return {"center": self.center.tolist(), "voxel_size": self.voxel_size, "dim": self.dim}
 
@@ -133,11 +129,6 @@ def partial_to_grid(points_cam: np.ndarray) -> tuple[np.ndarray, GridFrame]:
     """
     frame = frame_for_points(points_cam)
     return points_to_grid(points_cam, frame), frame
-
-
-def occupied_centers(grid: np.ndarray, frame: GridFrame) -> np.ndarray:
-    """Camera-frame metres (N, 3) of the centres of the occupied voxels of ``grid``."""
-    return frame.voxel_centers(np.argwhere(grid))
 
 
 def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray | None = None,

@@ -25,7 +25,6 @@ class Layer:
     label: str
     visible: bool
     hint: str
-    available: bool = True
 
 
 LAYERS: tuple[Layer, ...] = (
@@ -106,7 +105,7 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
                                   hint="Baseline: the convex hull of the selected segment's observed points")
         timings = gui.add_markdown("_No completion yet._")
     with gui.add_folder("Layers"):
-        layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint, disabled=not layer.available)
+        layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint)
                   for layer in LAYERS}
         cloud_colors = gui.add_dropdown("Cloud colours", ("capture", "depth"),
                                         hint="Colour the cloud with the sensor's colours or by depth")
