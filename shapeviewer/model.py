@@ -216,6 +216,48 @@ class Completer:
             out[ctx.any(axis=1)] = 0.0
         return out[0] if single else out
 
+    def predict_samples(self, grids: np.ndarray, n: int = 8, *, context: np.ndarray | None = None) -> np.ndarray:
+        """``n`` plausible completions: (n, 40, 40, 40) or (n, B, 40, 40, 40) float32 probabilities.
+
+        Sample k is the network's answer for the view mirrored by the k-th image-plane symmetry
+        (flip x, flip y, swap x and y: mirrors of the scene with the camera in place, which the
+        network was trained on), mapped back. Where the observation pins the shape down the answers
+        agree; where the network guesses (the unseen back, a handle) they differ, so their spread is
+        a per-voxel uncertainty. ``n`` is at most ``len(SYMMETRIES)`` (8); sample 0 is :meth:`predict`.
+        """
+        if not 1 <= n <= len(SYMMETRIES):
+            raise ValueError(f"n must be between 1 and {len(SYMMETRIES)}, got {n}")
+        grids = np.asarray(grids)
+        single = grids.ndim == 3
+        batch = grids[None] if single else grids
+        ctx = None if context is None else (np.asarray(context, bool)[None] if single else np.asarray(context, bool))
+        syms = SYMMETRIES[:n]
+        stacked = np.concatenate([_symmetry(batch, s) for s in syms])
+        ctx_stacked = None if ctx is None else np.concatenate([_symmetry(ctx, s) for s in syms])
+        p = self.predict(stacked, context=ctx_stacked).reshape((n,) + batch.shape)
+        out = np.stack([_symmetry(p[k], s, inverse=True) for k, s in enumerate(syms)])
+        return np.ascontiguousarray(out[:, 0] if single else out)
+
+
+# The image-plane symmetries the network was trained with (train.augment): flip x, flip y and
+# swap x and y, as axes of a (B, 40, 40, 40) or (B, C, 40, 40, 40) array's last three dimensions.
+SYMMETRIES = tuple((fx, fy, sw) for sw in (False, True) for fy in (False, True) for fx in (False, True))
+
+
+def _symmetry(a: np.ndarray, sym: tuple[bool, bool, bool], inverse: bool = False) -> np.ndarray:
+    """Apply one of :data:`SYMMETRIES` to the [x, y, z] axes (the last three) of ``a``."""
+    fx, fy, sw = sym
+    x, y = a.ndim - 3, a.ndim - 2
+    if sw and inverse:
+        a = np.swapaxes(a, x, y)
+    if fx:
+        a = np.flip(a, x)
+    if fy:
+        a = np.flip(a, y)
+    if sw and not inverse:
+        a = np.swapaxes(a, x, y)
+    return a
+
 
 def network_input(grids: np.ndarray, context: np.ndarray | None, in_channels: int) -> torch.Tensor:
     """(B, in_channels, 40, 40, 40) float32 tensor: occupancy, then the context channels (zeros,

@@ -61,3 +61,27 @@ def test_varley2017_is_the_papers_network_and_trains_on_cpu():
     assert out.shape == (1, 1, 40, 40, 40)
     out.sigmoid().mean().backward()
     assert net.features[0].weight.grad is not None and torch.isfinite(net.features[0].weight.grad).all()
+
+
+def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
+    from scipy import ndimage
+
+    from shapeviewer.tabletop import render_tabletop_view
+    from shapeviewer.voxel import context_grids, partial_to_grid
+
+    v = render_tabletop_view("ycb/025_mug", 5, seed=3)
+    grid, frame = partial_to_grid(v.points_cam)
+    ctx = context_grids(v.points_cam, frame, v.plane_cam)
+    c = load_completer()
+    samples = c.predict_samples(grid, 8, context=ctx)
+    assert samples.shape == (8, 40, 40, 40) and samples.dtype == np.float32
+    assert np.array_equal(samples[0], c.predict(grid, context=ctx))  # sample 0 is the best estimate
+    assert not (samples[:, ctx.any(axis=0)] > 0).any()  # no sample fills known-empty space
+    spread = samples.std(axis=0)
+    active = (samples > 0.05).any(axis=0)
+    seen = ndimage.binary_dilation(grid) & active
+    assert spread.max() > 0.1 and spread[seen].mean() < spread[active & ~seen].mean()
+    batch = c.predict_samples(np.stack([grid, grid]), 3, context=np.stack([ctx, ctx]))
+    assert batch.shape == (3, 2, 40, 40, 40) and np.allclose(batch[:, 0], samples[:3], atol=1e-6)
+    with pytest.raises(ValueError, match="between 1 and 8"):
+        c.predict_samples(grid, 9)
