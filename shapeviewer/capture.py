@@ -9,6 +9,11 @@ Real files are read with :func:`load_capture` (dispatching on the suffix):
   organized or not, NaN rows allowed. Points are taken to be in the camera optical frame, metres
   (a PCD's VIEWPOINT is ignored). Organized clouds get intrinsics fitted to their points.
 * ``.png`` (uint16 millimetres) / ``.npy`` (float metres) depth images (:func:`load_depth`).
+* ``.npy`` arrays of points: (N, 3) or organized (H, W, 3) camera-frame metres (:func:`load_npy_points`).
+
+What a capture may cost is capped: a file of more than :data:`MAX_FILE_POINTS` points is refused
+before it is read, and :func:`load_capture` keeps at most :data:`MAX_CAPTURE_POINTS` of the rest
+(:func:`decimate`: a regular stride, rows and columns of an organized cloud), logging a warning.
 
 Every problem with a file raises :class:`CaptureError` naming the file and what is wrong with it.
 """
@@ -17,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +62,8 @@ class Capture:
         source: where the capture came from (a path, or ``default(seed=N)``).
         objects: ground truth of synthetic scenes (empty for real captures).
         labels: per-pixel ground-truth object index (same leading shape, -1 = none) for synthetic scenes.
+        original_points: points (rows, NaN included) of the file before :func:`decimate` kept fewer;
+            None when nothing was dropped.
     """
 
     points_cam: np.ndarray
@@ -66,6 +73,7 @@ class Capture:
     source: str = ""
     objects: list[SceneObject] = field(default_factory=list)
     labels: np.ndarray | None = None
+    original_points: int | None = None
 
     @property
     def organized(self) -> bool:
@@ -82,6 +90,12 @@ class Capture:
         """(N,) bool: rows of ``flat_points()`` that are finite."""
         return np.isfinite(self.flat_points()).all(axis=1)
 
+    def decimation_note(self) -> str | None:
+        """What :func:`decimate` dropped, in words for the user; None when the capture is whole."""
+        if self.original_points is None:
+            return None
+        return f"{self.original_points:,} points: kept {len(self.flat_points()):,} for segmentation and completion"
+
 
 class CaptureError(ValueError):
     """A capture file that cannot be read; the message names the file and what is wrong with it."""
@@ -89,6 +103,12 @@ class CaptureError(ValueError):
 
 CLOUD_SUFFIXES = (".pcd", ".ply")
 DEPTH_SUFFIXES = (".png", ".npy")
+# What one capture may cost. Segmentation and completion keep at most this many points (a
+# 1280x720 frame fits whole; 5 M points cost 3.4 GB and 20 s to segment, 1 M about 0.4 GB and 3 s).
+MAX_CAPTURE_POINTS = 1_000_000
+# Files declaring more points (or depth pixels) than this are refused unread: Open3D and PIL
+# would hold all of them (10 M points are about 0.5 GB as Open3D reads them).
+MAX_FILE_POINTS = 10_000_000
 # PCD and PLY headers are a few hundred bytes; this many lines without the end of the header means
 # the file is not what its suffix says.
 _MAX_HEADER_LINES = 200
@@ -97,26 +117,120 @@ _MAX_HEADER_LINES = 200
 _MAX_FIT_RMS_PX = 0.5
 
 
-def load_capture(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
-    """Read a point cloud (``.pcd``, ``.ply``) or a depth image (``.png``, ``.npy``).
+def load_capture(path: str | os.PathLike, intrinsics: Intrinsics | None = None,
+                 max_points: int | None = MAX_CAPTURE_POINTS) -> Capture:
+    """Read a point cloud (``.pcd``, ``.ply``, ``.npy`` of points) or a depth image (``.png``, ``.npy``).
+
+    A ``.npy`` holding an (N, 3) or (H, W, 3) array is points (camera frame, metres); a 2-D
+    (H, W) one is a depth image.
 
     Args:
         path: the file.
         intrinsics: the camera's intrinsics. Depth images need them (default: the Kinect's, see
             :func:`load_depth`); organized clouds get them fitted when omitted.
+        max_points: keep at most this many points (:func:`decimate`, with a logged warning);
+            None keeps all.
 
     Raises:
-        CaptureError: the file is missing, of an unsupported type, or unreadable.
+        CaptureError: the file is missing, of an unsupported type, unreadable, or larger than
+            :data:`MAX_FILE_POINTS`.
     """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in CLOUD_SUFFIXES:
-        return load_cloud(path, intrinsics)
-    if suffix in DEPTH_SUFFIXES:
-        return load_depth(path, intrinsics)
-    raise CaptureError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; "
-                       f"expected a point cloud ({', '.join(CLOUD_SUFFIXES)}) or a depth image "
-                       f"({', '.join(DEPTH_SUFFIXES)})")
+        capture = load_cloud(path, intrinsics)
+    elif suffix == ".npy" and _npy_holds_points(path):
+        capture = load_npy_points(path, intrinsics)
+    elif suffix in DEPTH_SUFFIXES:
+        capture = load_depth(path, intrinsics)
+    else:
+        raise CaptureError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; "
+                           f"expected a point cloud ({', '.join(CLOUD_SUFFIXES)}) or a depth image "
+                           f"({', '.join(DEPTH_SUFFIXES)})")
+    if max_points is not None:
+        capture = decimate(capture, max_points)
+        if capture.original_points is not None:
+            log.warning("%s: %s", path, capture.decimation_note())
+    return capture
+
+
+def decimate(capture: Capture, max_points: int) -> Capture:
+    """``capture`` with at most ``max_points`` points (rows of ``flat_points()``, NaN rows included).
+
+    A regular stride, cheap for any size and deterministic: every k-th row and column of an
+    organized cloud (which stays organized, its intrinsics scaled to the kept pixels), every k-th
+    point of an unorganized one. Colours and labels follow; ``original_points`` records the count
+    before. A capture within the limit is returned as it is.
+    """
+    if max_points < 1:
+        raise ValueError(f"max_points must be at least 1, got {max_points}")
+    n = len(capture.flat_points())
+    if n <= max_points:
+        return capture
+    if capture.organized:
+        h, w = capture.points_cam.shape[:2]
+        k = max(2, int(np.ceil(np.sqrt(n / max_points))))
+        while -(-h // k) * -(-w // k) > max_points:
+            k += 1
+        keep: tuple = (slice(None, None, k), slice(None, None, k))
+        intr = capture.intrinsics
+        if intr is not None:  # pixel (u', v') of the kept grid is pixel (k u', k v') of the original
+            intr = Intrinsics(-(-w // k), -(-h // k), intr.fx / k, intr.fy / k, intr.cx / k, intr.cy / k)
+    else:
+        keep = (slice(None, None, int(np.ceil(n / max_points))),)
+        intr = capture.intrinsics
+
+    def take(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else np.ascontiguousarray(a[keep])
+
+    return replace(capture, points_cam=take(capture.points_cam), colors=take(capture.colors),
+                   labels=take(capture.labels), intrinsics=intr,
+                   original_points=n if capture.original_points is None else capture.original_points)
+
+
+def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
+    """Read a ``.npy`` of points: (N, 3) unorganized or (H, W, 3) organized, camera optical frame metres.
+
+    NaN rows mark invalid points. Organized arrays get intrinsics fitted when none are given.
+
+    Raises:
+        CaptureError: unreadable, not such an array, larger than :data:`MAX_FILE_POINTS`, or no finite point.
+    """
+    path = _check_file(path)
+    try:
+        raw = np.load(path, mmap_mode="r", allow_pickle=False)
+    except Exception as e:  # ValueError, OSError, EOFError... for broken files
+        raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
+    if raw.ndim not in (2, 3) or raw.shape[-1] != 3 or raw.size == 0:
+        raise CaptureError(f"{path}: expected (N, 3) or (H, W, 3) points in metres, got {raw.shape}")
+    if not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+        raise CaptureError(f"{path}: expected numeric points, got dtype {raw.dtype}")
+    n = raw.size // 3
+    if n > MAX_FILE_POINTS:
+        raise CaptureError(f"{path}: {n:,} points; at most {MAX_FILE_POINTS:,} can be loaded")
+    points = np.asarray(raw, dtype=np.float64)
+    if not np.isfinite(points).all(axis=-1).any():
+        raise CaptureError(f"{path}: none of its {n} points is finite (all NaN/inf)")
+    if points.ndim == 3:
+        h, w = points.shape[:2]
+        if intrinsics is None:
+            intrinsics = fit_intrinsics(points, source=str(path))
+        elif (intrinsics.width, intrinsics.height) != (w, h):
+            raise CaptureError(f"{path}: the cloud is organized {w}x{h} but the given intrinsics "
+                               f"are for {intrinsics.width}x{intrinsics.height}")
+    return Capture(points_cam=points, intrinsics=intrinsics, source=str(path))
+
+
+def _npy_holds_points(path: Path) -> bool:
+    """Whether a ``.npy`` file's header says (N, 3) or (H, W, 3), i.e. points rather than a depth image."""
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, _ = read(f)
+    except Exception:  # not a .npy (or a broken one): load_depth says what is wrong with it
+        return False
+    return len(shape) in (2, 3) and shape[-1] == 3
 
 
 def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
@@ -145,6 +259,8 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
         n_points, width, height = _ply_layout(path)
     else:
         raise CaptureError(f"{path}: not a point cloud file (expected {' or '.join(CLOUD_SUFFIXES)})")
+    if n_points > MAX_FILE_POINTS:
+        raise CaptureError(f"{path}: {n_points:,} points; at most {MAX_FILE_POINTS:,} can be loaded")
     # Our own header checks above catch what Open3D would only warn about (or fill with zeros).
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.io.read_point_cloud(str(path), format=suffix[1:], remove_nan_points=False,
@@ -400,8 +516,12 @@ def _read_png_depth(path: Path) -> np.ndarray:
 
     try:
         with Image.open(path) as im:
+            if im.width * im.height > MAX_FILE_POINTS:  # checked before decoding the pixels
+                raise CaptureError(f"{path}: {im.width}x{im.height} pixels; at most {MAX_FILE_POINTS:,} can be loaded")
             im.load()
             mode, depth = im.mode, np.asarray(im)
+    except CaptureError:
+        raise
     except Exception as e:  # PIL raises OSError, SyntaxError, ValueError... for broken files
         raise CaptureError(f"{path}: not a readable PNG image ({e})") from None
     if not mode.startswith("I"):
@@ -412,12 +532,14 @@ def _read_png_depth(path: Path) -> np.ndarray:
 
 def _read_npy_depth(path: Path) -> np.ndarray:
     try:
-        depth = np.load(path, allow_pickle=False)
+        depth = np.load(path, mmap_mode="r", allow_pickle=False)  # mapped: the size is checked before reading
     except Exception as e:  # ValueError, OSError, EOFError... for broken files
         raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
     if not isinstance(depth, np.ndarray) or depth.ndim != 2:
         shape = getattr(depth, "shape", type(depth).__name__)
         raise CaptureError(f"{path}: expected a 2-D (H, W) depth array in metres, got {shape}")
+    if depth.size > MAX_FILE_POINTS:
+        raise CaptureError(f"{path}: {depth.shape[1]}x{depth.shape[0]} pixels; at most {MAX_FILE_POINTS:,} can be loaded")
     if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
         raise CaptureError(f"{path}: expected a numeric depth array, got dtype {depth.dtype}")
     return depth

@@ -16,8 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import shutil
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -51,12 +54,39 @@ def load_input(spec: str, seed: int = 0, intrinsics=None):
     return load_capture(spec, intrinsics=intrinsics)
 
 
+class CLIError(ValueError):
+    """A problem with the command's arguments or input, said in one line."""
+
+
+# Commands whose option names a folder they create: removed again if the command fails and leaves it empty.
+OUT_FOLDERS = {"complete": "out", "generate": "out", "evaluate": "out", "train": "run"}
+
+
+def _new_folders(path: Path, option: str) -> list[Path]:
+    """The folders of ``path`` (itself, then its parents) that do not exist yet; raises when
+    ``path`` exists as something other than a folder (``option`` names it in the message)."""
+    if path.exists() and not path.is_dir():
+        raise CLIError(f"--{option} {path}: exists and is not a folder")
+    missing = []
+    while not path.exists() and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    return missing
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) that hold no file, e.g. after a failed command created them."""
+    for folder in folders:
+        if folder.is_dir() and not any(p.is_file() or p.is_symlink() for p in folder.rglob("*")):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 def cmd_serve(args) -> int:
     from .viewer import serve
 
     try:
         serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
-              intrinsics=_intrinsics(args), results=args.results)
+              intrinsics=_intrinsics(args), results=args.results, allow_hosts=tuple(args.allow_host))
     except OSError as e:  # e.g. a bad --cloud path: say so instead of a traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -77,10 +107,14 @@ def cmd_complete(args) -> int:
     t_load = time.perf_counter() - t0
     seg = segment_scene(capture)
     T_world_cam = capture.T_world_cam if capture.objects else seg.T_world_cam
-    completer = load_completer(args.weights)
+    if not seg.segments:
+        raise CLIError(f"{capture.source}: no segments found (nothing stands on a support plane among its "
+                       f"{int(capture.valid_mask().sum()):,} valid points); nothing to complete")
     wanted = seg.segments if args.segment == "all" else [s for s in seg.segments if str(s.id) == args.segment]
     if not wanted:
-        raise SystemExit(f"no segment {args.segment!r}; the capture has segments {[s.id for s in seg.segments]}")
+        raise CLIError(f"no segment {args.segment!r}; the capture has segments "
+                       f"{', '.join(str(s.id) for s in seg.segments)}")
+    completer = load_completer(args.weights)
     report = {"input": capture.source, "load_seconds": t_load, "segmentation": seg.timings,
               "model": {"arch": completer.arch, "trained": completer.trained, "weights": completer.source},
               "T_world_cam": np.asarray(T_world_cam).tolist(), "segments": []}
@@ -128,6 +162,13 @@ def cmd_complete(args) -> int:
 
 
 def cmd_grasp(args) -> int:
+    out = Path(args.out)
+    if out.is_dir():
+        raise CLIError(f"--out {out} is a folder; give a file name (grasps.json or scene.zip)")
+    if not out.parent.is_dir():
+        raise CLIError(f"--out {out}: the folder {out.parent} does not exist")
+    if args.budget is not None and not args.budget > 0:
+        raise CLIError(f"--budget must be a positive number of seconds, got {args.budget}")
     from .grasp.export import plan_mesh_file
 
     grasps = plan_mesh_file(args.mesh, args.out, hand=args.hand, n_grasps=args.n, seed=args.seed,
@@ -226,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--results", default=None, metavar="DIR",
                    help="results folder of `shapeviewer evaluate` for the Dataset tab (default: a small sample "
                         "store, built in the user cache on first run)")
+    s.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="another name browsers reach this server by (besides localhost and --host); repeatable")
     _add_input_args(s)
     s.set_defaults(func=cmd_serve)
 
@@ -317,15 +360,63 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _import_pybullet_quietly() -> None:
+    """Import pybullet with stderr closed: its C code prints its build date there on import, and the
+    command's stderr is for its own messages (an error is one line)."""
+    if "pybullet" in sys.modules:
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        import pybullet  # noqa: F401
+    except ImportError:  # reported where it is needed
+        pass
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command. Failures are one line on stderr and exit code 2 (1 for an unexpected error,
+    with its traceback under ``-v``); Ctrl-C stops any command within seconds (exit code 130,
+    no child process left: :mod:`.interrupt`). A folder the command created and left empty is removed."""
+    from .interrupt import interrupt_watch, kill_descendants
+
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return args.func(args)
-    except (ValueError, FileNotFoundError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    if args.command != "objects":
+        _import_pybullet_quietly()
+    created: list[Path] = []
+    ok = False
+    with interrupt_watch():
+        try:
+            if args.command in OUT_FOLDERS:
+                created = _new_folders(Path(getattr(args, OUT_FOLDERS[args.command])), OUT_FOLDERS[args.command])
+            code = args.func(args)
+            ok = code == 0
+            return code
+        except KeyboardInterrupt:
+            kill_descendants()  # here too: the watcher thread dies with the process, maybe before it is done
+            print("shapeviewer: interrupted", file=sys.stderr)
+            return 130
+        except (ValueError, OSError, KeyError, RuntimeError) as e:
+            # CaptureError, MeshError, DecompositionError, a missing file...: the message says it all.
+            if args.verbose:
+                traceback.print_exc()
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        except Exception as e:  # a bug: still one line, the traceback with -v
+            if args.verbose:
+                traceback.print_exc()
+            print(f"error: unexpected {type(e).__name__}: {e} (run with -v for the traceback)", file=sys.stderr)
+            return 1
+        finally:
+            if not ok:
+                _remove_empty(created)
 
 
 if __name__ == "__main__":

@@ -188,7 +188,7 @@ def test_movable_object_uses_cached_decomposition(tmp_path, monkeypatch):
     path = W.convex_decomposition(ell)
     assert path.exists() and path.parent == tmp_path / "vhacd"
     calls = []
-    monkeypatch.setattr(W.subprocess, "run", lambda *a, **k: calls.append(a))
+    monkeypatch.setattr(W.subprocess, "Popen", lambda *a, **k: calls.append(a))
     with W.GraspWorld("barrett", table=False) as world:
         body = world.add_object(ell, movable=True)
         assert not calls  # reused from the cache

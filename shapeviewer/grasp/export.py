@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import io
 import json
+import logging
+import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +37,8 @@ from shapeviewer.grasp.execute import ExecutionResult, LiftResult
 from shapeviewer.grasp.hands import get_hand, pose_to_pq
 from shapeviewer.grasp.plan import Grasp, GraspContact, ProgressFn, plan_grasps
 from shapeviewer.grasp.world import convex_decomposition
+
+log = logging.getLogger(__name__)
 
 FORMAT = "shapeviewer.grasps"
 VERSION = 1
@@ -219,9 +223,18 @@ def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "bar
     grasps.json, or the pybullet scene when the name ends in ``.zip``.
 
     ``on_table``: first move the mesh up or down so that its lowest point rests on the table
-    (z = 0); the shift is recorded as ``meta["T_world_mesh"]``. Returns the grasps.
+    (z = 0); the shift is recorded as ``meta["T_world_mesh"]``. Returns the grasps. An open (not
+    watertight) mesh is planned on with a logged warning.
+
+    Raises:
+        MeshError: the file is missing, unreadable, has no triangles (e.g. points only) or is
+            flat (no volume to grasp, and V-HACD never returns on it).
+        DecompositionError: V-HACD failed or was not done within the budget.
     """
-    mesh = trimesh.load(mesh_path, force="mesh")
+    mesh = read_mesh(mesh_path)
+    if not mesh.is_watertight:
+        log.warning("%s is not watertight (an open surface): inside and outside are guessed by ray voting, "
+                    "so grasp qualities are approximate", mesh_path)
     T = np.eye(4)
     if on_table:
         T[2, 3] = -float(mesh.bounds[0, 2])
@@ -230,8 +243,43 @@ def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "bar
                          progress=progress)
     meta = {"source": str(mesh_path), "T_world_mesh": _floats(T), "hand": hand, "seed": seed}
     out_path = Path(out_path)
-    if out_path.suffix == ".zip":
-        out_path.write_bytes(scene_zip(mesh, grasps, meta=meta))
-    else:
-        out_path.write_text(grasps_to_json(grasps, meta=meta))
+    data = scene_zip(mesh, grasps, meta=meta) if out_path.suffix == ".zip" else grasps_to_json(grasps, meta=meta).encode()
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    tmp.write_bytes(data)  # then renamed: a failed or interrupted run leaves no half-written file
+    os.replace(tmp, out_path)
     return grasps
+
+
+class MeshError(ValueError):
+    """A mesh file that cannot be grasped; the message names the file and what is wrong with it."""
+
+
+# A mesh thinner than this (m) in every direction across its main plane has no volume to grasp.
+MIN_THICKNESS = 1e-3
+
+
+def read_mesh(path: str | Path) -> trimesh.Trimesh:
+    """A mesh file (PLY, OBJ, STL, GLB, ...; metres) as one triangle mesh, checked for grasping.
+
+    Raises:
+        MeshError: missing, unreadable, no triangles (a point cloud) or flat (thinner than
+            :data:`MIN_THICKNESS`).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as e:  # trimesh raises ValueError, KeyError, IndexError... for broken files
+        raise MeshError(f"{path}: not a readable mesh ({e})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise MeshError(f"{path}: no triangles (a point cloud?); grasps need a surface mesh")
+    pts = np.asarray(mesh.vertices, float)
+    if not np.isfinite(pts).all():
+        raise MeshError(f"{path}: vertices that are not finite numbers")
+    centred = pts - pts.mean(axis=0)
+    thickness = float(np.ptp(centred @ np.linalg.svd(centred, full_matrices=False)[2][-1])) if len(pts) >= 3 else 0.0
+    if thickness < MIN_THICKNESS:
+        raise MeshError(f"{path}: flat ({len(mesh.faces)} triangles, {thickness * 1000:.2f} mm thick); "
+                        "grasps need an object with volume")
+    return mesh

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cache
 from typing import Callable, Sequence
@@ -43,7 +42,7 @@ from skimage import measure
 
 from shapeviewer.grasp.hands import Hand, get_hand, pose_to_pq
 from shapeviewer.grasp.quality import GraspQuality, grasp_quality, max_radius
-from shapeviewer.grasp.world import ApproachResult, CloseResult, Contact, GraspWorld, convex_decomposition
+from shapeviewer.grasp.world import ApproachResult, CloseResult, Contact, Decomposition, GraspWorld
 
 BACK_OFF = 0.2  # m: the protocol backs the open hand off this far along the approach (SPEC section 8)
 APPROACH_SLACK = 0.03  # m: planning approaches this much beyond the back-off, for cheap-stage errors
@@ -614,6 +613,10 @@ def plan(mesh_world: trimesh.Trimesh, hand: str = "barrett", n_grasps: int = 20,
     Deterministic for a seed unless ``budget_seconds`` (wall-clock limit: the search gets up to
     45% of it, the simulation the rest) or ``cancel`` (polled often; planning then returns the
     grasps simulated so far) cut it short. ``progress(fraction)`` reports 0..1.
+
+    Raises:
+        DecompositionError: the object's convex decomposition failed or was not ready within the
+            budget (or :data:`~shapeviewer.grasp.world.VHACD_TIMEOUT` without one).
     """
     t0 = time.perf_counter()
     report = progress or (lambda _f: None)
@@ -626,22 +629,28 @@ def plan(mesh_world: trimesh.Trimesh, hand: str = "barrett", n_grasps: int = 20,
     hand_ = get_hand(hand)
     seconds: dict[str, float] = {}
     # V-HACD runs in a child process: let it overlap the cheap stage. A cancelled plan does not
-    # wait for it (it still completes the cache for the next one).
-    pool = ThreadPoolExecutor(max_workers=1)
-    decomposition = pool.submit(convex_decomposition, mesh_world)
-    pool.shutdown(wait=False)
-    hs = _hand_samples(hand)
-    obj = ObjectField(mesh_world, seed)
-    seconds["setup"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    found, evaluations, cancelled = _search(obj, hs, rng, table, settings, report, stopped, lambda: over(0.45))
-    seconds["search"] = time.perf_counter() - t1
+    # wait for it (it still completes the cache for the next one, within its own time bound); a
+    # failed or interrupted one kills it.
+    decomposition = Decomposition(mesh_world)
+    try:
+        hs = _hand_samples(hand)
+        obj = ObjectField(mesh_world, seed)
+        seconds["setup"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        found, evaluations, cancelled = _search(obj, hs, rng, table, settings, report, stopped, lambda: over(0.45))
+        seconds["search"] = time.perf_counter() - t1
+        if not cancelled:
+            # Within the budget when there is one (a grasp needs the decomposition: none without it).
+            left = None if budget_seconds is None else max(1.0, t0 + budget_seconds - time.perf_counter())
+            decomposition.wait(left)
+    except BaseException:
+        decomposition.cancel()
+        raise
 
     t2 = time.perf_counter()
     grasps: list[Grasp] = []
     simulated = 0
     if not cancelled:
-        decomposition.result()
         order = np.argsort(found.energy, kind="stable")
         order = order[np.isfinite(found.energy[order])]
         n_sim = max(settings.simulate, 3 * n_grasps)

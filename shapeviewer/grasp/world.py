@@ -13,11 +13,15 @@ with the links between ``contact_tol / 2`` and ``contact_tol`` away from what st
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -91,29 +95,154 @@ def mesh_hash(mesh: trimesh.Trimesh) -> str:
     return h.hexdigest()
 
 
-def convex_decomposition(mesh: trimesh.Trimesh) -> Path:
+class DecompositionError(RuntimeError):
+    """V-HACD failed or did not finish in time (the message says which, for the user)."""
+
+
+# V-HACD decomposes a 16k-face mesh in about a second; it never returns on some degenerate input
+# (a single triangle spins forever), so every run is bounded.
+VHACD_TIMEOUT = 60.0
+# The cache of decompositions (a few kB to a few hundred kB each) is kept under this many bytes,
+# least recently used first out; $SHAPEVIEWER_VHACD_CACHE_MB overrides.
+VHACD_CACHE_BYTES = 256 * 2**20
+# Temporary folders of runs that were killed (SIGKILL leaves them) are removed after this long.
+_STALE_TMP_SECONDS = 2 * VHACD_TIMEOUT
+
+# The child: bounded by its own alarm (the parent may stop waiting, e.g. a cancelled plan), so it
+# can never outlive VHACD_TIMEOUT; it moves its result into the cache itself, atomically.
+_VHACD_CHILD = """
+import os, shutil, signal, sys
+import pybullet as p
+src, dst, log, final, resolution, timeout = sys.argv[1:7]
+signal.alarm(max(1, int(float(timeout))))
+try:
+    p.vhacd(src, dst, log, resolution=int(resolution))
+    if not os.path.exists(dst) or os.path.getsize(dst) == 0:
+        sys.exit(3)
+    os.replace(dst, final)
+finally:
+    shutil.rmtree(os.path.dirname(src), ignore_errors=True)
+"""
+
+
+def vhacd_cache_bytes() -> int:
+    """The size cap of the V-HACD cache in bytes (``$SHAPEVIEWER_VHACD_CACHE_MB`` or :data:`VHACD_CACHE_BYTES`)."""
+    mb = os.environ.get("SHAPEVIEWER_VHACD_CACHE_MB")
+    return VHACD_CACHE_BYTES if not mb else int(float(mb) * 2**20)
+
+
+def prune_vhacd_cache(folder: Path, max_bytes: int) -> list[Path]:
+    """Delete the least recently used decompositions (oldest mtime; a cache hit touches its file)
+    until ``folder`` holds at most ``max_bytes``, and temporary folders of killed runs; returns what
+    was deleted."""
+    deleted: list[Path] = []
+    now = time.time()
+    entries = []
+    for path in folder.iterdir():
+        try:
+            st = path.stat()
+        except FileNotFoundError:  # another process pruned it meanwhile
+            continue
+        if path.is_dir():
+            if path.name.startswith("tmp") and now - st.st_mtime > _STALE_TMP_SECONDS:
+                shutil.rmtree(path, ignore_errors=True)
+                deleted.append(path)
+        elif path.suffix == ".obj":
+            entries.append((st.st_mtime, st.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    for _, size, path in sorted(entries):
+        if total <= max_bytes:
+            break
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            deleted.append(path)
+        total -= size
+    return deleted
+
+
+class Decomposition:
+    """A V-HACD run of one mesh in a child process, started at construction (or a cache hit).
+
+    pybullet.vhacd holds the GIL for its whole run (a viewer's other threads would freeze) and
+    prints its progress on stdout whatever the log file says: hence a child process. Use
+    :meth:`wait` for the OBJ path; :meth:`cancel` (or leaving a ``with`` block early) kills the child.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, timeout: float = VHACD_TIMEOUT):
+        out_dir = cache_dir() / "vhacd"
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.path = out_dir / f"{mesh_hash(mesh)}_r{VHACD_RESOLUTION}.obj"
+        self.timeout = timeout
+        self.started = time.monotonic()
+        self.process: subprocess.Popen | None = None
+        if self.path.exists():
+            with contextlib.suppress(FileNotFoundError):  # least recently used goes first: touch it
+                os.utime(self.path)
+            return
+        prune_vhacd_cache(out_dir, vhacd_cache_bytes())
+        tmp = Path(tempfile.mkdtemp(dir=out_dir))
+        src, dst, log = tmp / "in.obj", tmp / "out.obj", tmp / "log.txt"
+        mesh.export(src)
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", _VHACD_CHILD, str(src), str(dst), str(log), str(self.path),
+             str(VHACD_RESOLUTION), str(timeout)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self._tmp = tmp
+
+    def wait(self, timeout: float | None = None) -> Path:
+        """The decomposition's OBJ, waiting at most ``timeout`` seconds (default: what is left of
+        the run's own bound).
+
+        Raises:
+            DecompositionError: V-HACD failed or is not done in time (the child is then killed).
+        """
+        if self.process is None:
+            return self.path
+        left = self.timeout - (time.monotonic() - self.started)
+        try:
+            code = self.process.wait(timeout=max(0.0, min(left, left if timeout is None else timeout)))
+        except subprocess.TimeoutExpired:
+            self.cancel()
+            raise DecompositionError(f"the convex decomposition (V-HACD) did not finish within "
+                                     f"{min(self.timeout, timeout or self.timeout):.0f} s; the mesh may be "
+                                     "degenerate") from None
+        except BaseException:  # e.g. KeyboardInterrupt: do not leave the child behind
+            self.cancel()
+            raise
+        if code != 0 or not self.path.exists():
+            reason = "was stopped after its time limit" if code == -signal.SIGALRM else f"failed (exit code {code})"
+            raise DecompositionError(f"the convex decomposition (V-HACD) {reason}; the mesh may be degenerate")
+        return self.path
+
+    def cancel(self) -> None:
+        """Kill the child (if it still runs) and remove its temporary folder."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.process.wait(timeout=5)
+        if self.process is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> "Decomposition":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.cancel()
+
+
+def convex_decomposition(mesh: trimesh.Trimesh, timeout: float = VHACD_TIMEOUT) -> Path:
     """An OBJ of convex parts of ``mesh`` (pybullet's V-HACD), cached under ``cache_dir()/vhacd``.
 
     pybullet turns a triangle mesh on a moving body into a single convex hull, so a movable
     concave object needs its parts. Decomposing a 16k-face mesh takes about a second; the cache
     is keyed by the mesh's geometry and the V-HACD settings, and files are written atomically so
-    concurrent processes can share it.
+    concurrent processes can share it. The cache is kept under :func:`vhacd_cache_bytes`.
+
+    Raises:
+        DecompositionError: V-HACD failed or took longer than ``timeout`` seconds.
     """
-    out_dir = cache_dir() / "vhacd"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    out = out_dir / f"{mesh_hash(mesh)}_r{VHACD_RESOLUTION}.obj"
-    if out.exists():
-        return out
-    with tempfile.TemporaryDirectory(dir=out_dir) as tmp:
-        src, dst, log = Path(tmp) / "in.obj", Path(tmp) / "out.obj", Path(tmp) / "log.txt"
-        mesh.export(src)
-        # In a child process: pybullet.vhacd holds the GIL for its whole run (a viewer's other
-        # threads would freeze) and prints its progress on stdout whatever the log file says.
-        code = "import sys, pybullet as p; p.vhacd(sys.argv[1], sys.argv[2], sys.argv[3], resolution=int(sys.argv[4]))"
-        subprocess.run([sys.executable, "-c", code, str(src), str(dst), str(log), str(VHACD_RESOLUTION)],
-                       check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        os.replace(dst, out)
-    return out
+    with Decomposition(mesh, timeout) as d:
+        return d.wait()
 
 
 class GraspWorld:

@@ -37,7 +37,7 @@ from PIL import Image
 from .. import export
 from ..baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..camera import Intrinsics, transform_points
-from ..capture import Capture, load_capture
+from ..capture import MAX_CAPTURE_POINTS, Capture, decimate, load_capture
 from ..model import load_completer, training_curves
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points
 from ..reconstruct import detailed_mesh
@@ -45,6 +45,7 @@ from ..segment import Segment, Segmentation, segment_scene
 from . import panel as P
 from .dataset import DatasetHooks, DatasetTab
 from .grasps import GraspController, GraspJob
+from .guard import Guard, server_url, start_server
 from .rays import first_hit
 from .visuals import default_view, depth_colors, probability_colors, shade, surface_voxels, voxel_cubes
 
@@ -64,6 +65,11 @@ MESH_TITLES = {"detailed": "Detailed mesh", "partial": "Partial baseline", "mirr
 ALGORITHM_1_STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge"),
                      ("fill_gaps", "fill gaps"), ("smooth", "smooth"), ("marching_cubes", "marching cubes"))
 READY = "Ready. Click a segment to complete it."
+# Points sent to a browser per scene (the cloud and the segments; picking and the pipeline use all
+# of them): a browser draws 300k points smoothly, millions not at all. The segments get up to
+# MAX_SEGMENT_POINTS of the budget, the cloud the rest.
+MAX_SENT_POINTS = 300_000
+MAX_SEGMENT_POINTS = 100_000
 
 
 @dataclass
@@ -110,9 +116,11 @@ class ViewerApp:
         cloud: a capture file path (.pcd/.ply/.png/.npy), a :class:`Capture`, or None (default scene).
         weights: CNN weights file; None = the shipped model (untrained fallback when absent).
         intrinsics: camera intrinsics for depth images.
-        max_cloud_points: draw at most this many points of the Cloud layer (None = all); picking and
-            completion always use every point.
+        max_cloud_points: draw at most this many points of the Cloud layer (None = what is left of
+            :data:`MAX_SENT_POINTS` after the segments); picking and completion use every point.
         announce: called with the URL as soon as the server listens (before the scene is built).
+        token: the URL token required off localhost (default: a random one; see :mod:`.guard`).
+        allow_hosts: further ``Host`` names to answer to besides localhost and ``host``.
         results: the Dataset tab's results store: a folder written by ``shapeviewer evaluate``,
             ``"default"`` (a small sample store, built in the background on first use), or None (none).
     """
@@ -120,8 +128,11 @@ class ViewerApp:
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, seed: int = 0,
                  cloud: str | Path | Capture | None = None, weights: str | Path | None = None,
                  intrinsics: Intrinsics | None = None, max_cloud_points: int | None = None,
-                 announce: Callable[[str], None] | None = None, results: str | Path | None = None) -> None:
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+                 announce: Callable[[str], None] | None = None, results: str | Path | None = None,
+                 token: str | None = None, allow_hosts: tuple[str, ...] = ()) -> None:
+        # Only this machine's browser (or, off localhost, holders of the token) may drive the app.
+        self.guard = Guard.for_host(host, token, allow_hosts)
+        self.server = start_server(host, port, self.guard)
         self.port = self.server.get_port()
         self.host = host
         self.intrinsics = intrinsics
@@ -187,8 +198,8 @@ class ViewerApp:
 
     @property
     def url(self) -> str:
-        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
-        return f"http://{host}:{self.port}"
+        """The URL to open (with ``?token=...`` when the server is reachable off this machine)."""
+        return server_url(self.host, self.port, self.guard)
 
     def stop(self) -> None:
         self.grasps.shutdown()
@@ -477,7 +488,9 @@ class ViewerApp:
                 return False
             notes = self._show_loading(client, f"Loading {what}...")
             try:
-                self._set_scene(make())
+                note = self._set_scene(make(), require_segment=True)
+                if note is not None:
+                    self._notify(client, "Large capture", note, "yellow")
                 return True
             except Exception as e:  # any bad input: tell the user, keep the current scene
                 log.warning("loading %s failed: %s", what, e, exc_info=not isinstance(e, (ValueError, OSError)))
@@ -487,11 +500,21 @@ class ViewerApp:
                 for note in notes:
                     note.remove()
 
-    def _set_scene(self, capture: Capture) -> None:
-        """Segment ``capture`` and replace the shown scene with it (raises, leaving the old scene, on failure)."""
+    def _set_scene(self, capture: Capture, require_segment: bool = False) -> str | None:
+        """Segment ``capture`` and replace the shown scene with it (raises, leaving the old scene, on failure).
+
+        ``require_segment``: refuse (ValueError) a capture without a segment that can be completed,
+        rather than replace the user's scene with an empty one. Returns a note for the user when
+        the capture was decimated (see :func:`~shapeviewer.capture.decimate`), else None.
+        """
+        capture = decimate(capture, MAX_CAPTURE_POINTS)  # load_capture did it for files; not for Captures
         t0 = time.perf_counter()
         seg = segment_scene(capture)
         seg_seconds = time.perf_counter() - t0
+        if require_segment and not any(_usable(s) for s in seg.segments):
+            found = (f"none of its {len(seg.segments)} segments is large enough to complete" if seg.segments
+                     else f"no segments found among its {int(capture.valid_mask().sum()):,} valid points")
+            raise ValueError(f"{found}; the current scene is kept")
         # Synthetic scenes know the true table frame; real ones use the segmentation's estimate.
         T = np.asarray(capture.T_world_cam if capture.objects else seg.T_world_cam, dtype=np.float64)
         segments = {s.id: s for s in seg.segments}
@@ -516,6 +539,12 @@ class ViewerApp:
         note = "world: simulated table frame" if capture.objects else "world: table plane from segmentation"
         self.panel.source.content = P.source_markdown(scene.title, len(capture.flat_points()), n_valid,
                                                       len(segments), seg_seconds, note)
+        decimated = capture.decimation_note()
+        sent = len(self._nodes["/cloud/points"].points) + sum(
+            len(self._nodes[f"/segments/seg_{sid}"].points) for sid in segments if f"/segments/seg_{sid}" in self._nodes)
+        if decimated is not None or sent < n_valid:
+            decimated = "; ".join(filter(None, [decimated, f"showing {sent:,} points"]))
+            self.panel.source.content += f"  \n_{decimated}_"
         self._segment_options = {s.label or f"segment {s.id}": s.id for s in seg.segments}
         self.panel.segment.options = (P.NO_SEGMENT, *self._segment_options)
         self.panel.segment.value = P.NO_SEGMENT
@@ -524,6 +553,7 @@ class ViewerApp:
         self.panel.timings.content = P.timings_markdown("No completion yet.", [("segmentation", seg_seconds)])
         self.panel.status.content = ("Ready. **Click a segment** in the 3D view to complete it." if segments
                                      else "**No segments found** in this capture.")
+        return decimated if capture.original_points is not None else None
 
     # ------------------------------------------------------------------------------------------
     # Drawing
@@ -549,15 +579,25 @@ class ViewerApp:
             colors = capture.flat_colors()[valid]
         else:
             colors = depth_colors(pts_cam[:, 2])
-        if self.max_cloud_points is not None and len(pts_cam) > self.max_cloud_points:
-            keep = np.random.default_rng(0).choice(len(pts_cam), self.max_cloud_points, replace=False)
+        budget = MAX_SENT_POINTS - sum(len(p) for p in self._segment_display_points().values())
+        if self.max_cloud_points is not None:
+            budget = min(budget, self.max_cloud_points)
+        if len(pts_cam) > budget:
+            keep = np.random.default_rng(0).choice(len(pts_cam), budget, replace=False)
             pts_cam, colors = pts_cam[keep], colors[keep]
         self._add("/cloud/points", self.server.scene.add_point_cloud, transform_points(T, pts_cam), colors,
                   point_size=CLOUD_POINT_SIZE, precision="float32", point_shading="flat")
 
+    def _segment_display_points(self) -> dict[int, np.ndarray]:
+        """Segment id -> the world points drawn for it: one common stride keeps MAX_SEGMENT_POINTS in all."""
+        total = sum(len(p) for p in self.scene.points_world.values())
+        stride = max(1, -(-total // MAX_SEGMENT_POINTS))
+        return {sid: p[::stride] for sid, p in self.scene.points_world.items()}
+
     def _draw_segments(self) -> None:
+        shown = self._segment_display_points()
         for sid, seg in self.scene.segments.items():
-            pts = self.scene.points_world[sid]
+            pts = shown[sid]
             if len(pts) == 0:
                 continue
             self._add(f"/segments/seg_{sid}", self.server.scene.add_point_cloud, pts,
@@ -794,17 +834,27 @@ class ViewerApp:
             c.add_notification(title, body, color=color, auto_close_seconds=auto_close)
 
 
+def _usable(segment: Segment) -> bool:
+    """Whether a segment has enough points and extent to be completed."""
+    try:
+        check_segment(segment.points_cam)
+        return True
+    except SegmentTooSmallError:
+        return False
+
+
 def serve(host: str = "127.0.0.1", port: int = 8080, seed: int = 0, cloud: str | Path | None = None,
           weights: str | Path | None = None, intrinsics: Intrinsics | None = None, block: bool = True,
-          results: str | Path | None = None) -> ViewerApp:
+          results: str | Path | None = None, allow_hosts: tuple[str, ...] = ()) -> ViewerApp:
     """Start the viewer (``python app.py`` and ``shapeviewer serve``); print its URL; serve until Ctrl-C.
 
     ``results``: the Dataset tab's results folder; None = the sample store in the user cache (built
-    in the background on first run). With ``block=False`` returns the running :class:`ViewerApp` instead.
+    in the background on first run). ``allow_hosts``: more names the server answers to (see
+    :mod:`.guard`). With ``block=False`` returns the running :class:`ViewerApp` instead.
     """
     app = ViewerApp(host, port, seed, cloud, weights, intrinsics,
                     announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True),
-                    results="default" if results is None else results)
+                    results="default" if results is None else results, allow_hosts=allow_hosts)
     print(f"shapeviewer: ready on {app.url}  (Ctrl-C to stop)", flush=True)
     if not block:
         return app

@@ -1,0 +1,38 @@
+"""The README names only files of this repository, and its Test block is what CI runs."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def code_blocks(text: str) -> list[str]:
+    return re.findall(r"```(?:bash|python)\n(.*?)```", text, flags=re.S)
+
+
+def test_readme_names_only_files_in_the_repository():
+    assert "shared/data" not in README, "README examples must use the shipped captures, not ../shared"
+    named = set(re.findall(r"(?:static_assets|tools|benchmarks|\.ci)/[\w./-]+\w", README))
+    assert "static_assets/captures/milk_cartoon_all_small_clorox.pcd" in named
+    missing = sorted(p for p in named if not (ROOT / p).exists())
+    assert not missing, f"the README names files the repository lacks: {missing}"
+    captures = ROOT / "static_assets" / "captures"
+    assert (captures / "LICENSE").is_file() and "BSD" in (captures / "LICENSE").read_text()
+
+
+def test_run_and_test_blocks_install_what_they_need():
+    blocks = code_blocks(README[README.index("## Run"):README.index("### Dataset tab")])
+    run = blocks[0].strip()
+    test = code_blocks(README[README.index("## Test"):README.index("## Command line")])[0].strip()
+    assert run.startswith("bash tools/install.sh") and run.endswith("python app.py")
+    assert test == "bash tools/install.sh --test && python -m pytest -q"
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert all(cmd in ci for cmd in test.split(" && ")), "CI must run the README's Test command"
+    script = (ROOT / "tools" / "install.sh").read_text()
+    assert "sudo" in script and "id -u" in script  # root runs apt-get itself, anyone else through sudo
+    assert "chromium" in script and ".[test]" in script
+    subprocess.run(["bash", "-n", str(ROOT / "tools" / "install.sh")], check=True)
