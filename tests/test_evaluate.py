@@ -238,3 +238,14 @@ def test_grasp_resume_skips_done(grasp_run, monkeypatch, capsys):
                  "--grasps", "--n-grasps", "2", "--grasp-methods", *GRASP_METHODS]) == 0
     assert calls == [] and "Table IV" in capsys.readouterr().out
     assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--grasps", "--grasp-methods", "Ours"]) == 2
+
+
+def test_tabletop_grasps_happen_on_the_found_table_in_its_frame():
+    plane = np.array([0.0, -0.8, -0.6, 0.7])  # camera 0.7 m above a table seen from 37 degrees
+    T, table = ev.grasp_world({"support_plane": plane.tolist()})
+    assert table
+    # The world's z is the table normal, and points on the table sit at z = 0.
+    assert np.allclose(T[:3, :3] @ plane[:3], [0, 0, 1], atol=1e-9)
+    on_table = -plane[3] * plane[:3]  # the camera's foot on the plane
+    assert abs((T[:3, :3] @ on_table + T[:3, 3])[2]) < 1e-9
+    assert ev.grasp_world({"support_plane": None}) == (ev.T_WORLD_CAM, False)
