@@ -39,6 +39,8 @@ class Completion:
         probabilities: (40, 40, 40) float32 CNN output.
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
+        samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`)
+            once computed; their per-voxel standard deviation is the completion's uncertainty.
         partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
             once computed.
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
@@ -57,6 +59,7 @@ class Completion:
     partial_mesh: trimesh.Trimesh | None = None
     mirror_mesh: trimesh.Trimesh | None = None
     hull_mesh: trimesh.Trimesh | None = None
+    samples: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     error: str | None = None
 

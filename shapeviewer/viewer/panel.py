@@ -32,6 +32,8 @@ LAYERS: tuple[Layer, ...] = (
     Layer("segments", "Segments", True, "Object segments after table removal and Euclidean clustering (step 2)."),
     Layer("cnn_input", "CNN input", True, "Occupied voxels of the 40^3 input grid of each completed segment (step 3)."),
     Layer("cnn_output", "CNN output", False, "Voxels the CNN marks occupied (p > 0.5) (step 4)."),
+    Layer("confidence", "Confidence", False,
+          "The CNN output shaded by how much 8 sample completions disagree: pale = seen, dark purple = a guess."),
     Layer("fast_mesh", "Fast mesh", True, "Marching cubes of the CNN output, in metres (step 5a)."),
     Layer("detailed_mesh", "Detailed mesh", False,
           "Algorithm 1: observed points merged with the CNN output, smoothed, meshed (step 5b)."),

@@ -34,6 +34,18 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
     return (colormaps["YlOrRd"](0.25 + 0.75 * x)[:, :3] * 255).astype(np.uint8)
 
 
+SPREAD_FULL_SCALE = 0.25  # sample spread (std of probabilities) drawn at full colour
+
+
+def spread_colors(spread: np.ndarray) -> np.ndarray:
+    """uint8 RGB (N, 3) for the samples' per-voxel spread: pale yellow where they agree (the
+    observation pins the shape down), through orange to dark purple where they disagree (a guess)."""
+    from matplotlib import colormaps
+
+    x = np.clip(np.asarray(spread, dtype=np.float64) / SPREAD_FULL_SCALE, 0.0, 1.0)
+    return (colormaps["magma_r"](0.02 + 0.9 * x)[:, :3] * 255).astype(np.uint8)
+
+
 def shade(color: np.ndarray, factor: float) -> tuple[int, int, int]:
     """An RGB colour darkened (factor < 1) or lightened towards white (factor > 1)."""
     c = np.asarray(color, dtype=np.float64)
