@@ -286,7 +286,7 @@ def capture_scene(objects: list[SceneObject], seed: int = 0, intrinsics: Intrins
     vertices = np.concatenate([m.vertices for m in meshes])
     target = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
     # Geometry 0 is the table, geometry i + 1 is object i.
-    renderer = RaycastRenderer([_table_mesh(target), *meshes])
+    renderer = RaycastRenderer([table_mesh(target), *meshes])
     T_world_cam = _choose_camera(rng, renderer, vertices, target, intrinsics, distance, len(objects))
     depth, gid, normals = renderer.render(intrinsics, T_world_cam, with_normals=True)
     if noise is not None:
@@ -306,10 +306,10 @@ def default_scene(seed: int = 0) -> Capture:
     return capture_scene(build_tabletop(seed), seed=seed)
 
 
-def _table_mesh(centre: np.ndarray) -> trimesh.Trimesh:
-    """A 2 x 2 m square of two triangles at z = 0 around ``centre`` (x, y), normal up."""
-    x0, y0 = centre[0] - TABLE_HALF_SIZE, centre[1] - TABLE_HALF_SIZE
-    x1, y1 = centre[0] + TABLE_HALF_SIZE, centre[1] + TABLE_HALF_SIZE
+def table_mesh(centre: np.ndarray, half_size: float = TABLE_HALF_SIZE) -> trimesh.Trimesh:
+    """A square of two triangles at z = 0 around ``centre`` (x, y), ``2 * half_size`` metres wide, normal up."""
+    x0, y0 = centre[0] - half_size, centre[1] - half_size
+    x1, y1 = centre[0] + half_size, centre[1] + half_size
     vertices = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
     return trimesh.Trimesh(vertices, [[0, 1, 2], [0, 2, 3]], process=False)
 

@@ -122,13 +122,6 @@ def _footprint_radius(name: str, T_world_obj: np.ndarray) -> float:
     return float(np.linalg.norm(v - (v.min(0) + v.max(0)) / 2, axis=1).max())
 
 
-def _table(centre: np.ndarray) -> trimesh.Trimesh:
-    x0, y0, x1, y1 = centre[0] - TABLE_HALF_SIZE, centre[1] - TABLE_HALF_SIZE, centre[0] + TABLE_HALF_SIZE, \
-        centre[1] + TABLE_HALF_SIZE
-    return trimesh.Trimesh([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]], [[0, 1, 2], [0, 2, 3]],
-                           process=False)
-
-
 def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | None = None,
                          neighbour_pool: list[str] | None = None, tries: int = 4) -> TabletopView | None:
     """Render and segment view ``view`` of ``name`` resting on a table; None if no usable view came out.
@@ -142,6 +135,7 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
             of the target's split, so holdout models stand among holdout models).
         tries: camera/layout draws before giving up (a neighbour may hide the target).
     """
+    from .scene import table_mesh
     from .segment import SegmentationError, segment_scene
 
     rng = np.random.default_rng([seed, dataset.stable_percent(name), len(name), int(view), 11])
@@ -178,7 +172,7 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
                                             np.cos(elevation) * toward_camera[1], np.sin(elevation)])
         target = centre + rng.normal(0, 0.03, 3) * [1, 1, 0.3]
         T_world_cam = look_at(eye, target)
-        renderer = RaycastRenderer([_table(centre), *meshes_world])
+        renderer = RaycastRenderer([table_mesh(centre, TABLE_HALF_SIZE), *meshes_world])
         depth, gid = renderer.render(intr, T_world_cam, crop_to_objects=False)
         if not _fully_in_image(depth, gid):
             continue
