@@ -184,7 +184,7 @@ class Completer:
     @property
     def in_channels(self) -> int:
         """1: occupancy only; 3: occupancy and the two context channels."""
-        return int(self.meta.get("arch_kwargs", {}).get("in_channels", 1))
+        return int(getattr(self.net, "in_channels", 1))
 
     def predict(self, grids: np.ndarray, *, context: np.ndarray | None = None) -> np.ndarray:
         """Occupancy probabilities (float32) for a (40,40,40) or (B,40,40,40) bool occupancy array.

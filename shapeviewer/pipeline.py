@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import trimesh
@@ -103,6 +104,7 @@ def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
              else np.zeros((0, 40, 40, 40), np.float32))
     t2 = time.perf_counter()
     n = max(1, len(grids))
+    plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
     out = []
     for sid, g, fr, ctx, p in zip(ids, grids, frames, contexts, probs):
         t3 = time.perf_counter()
@@ -111,7 +113,6 @@ def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
         except ValueError as e:
             mesh, err = None, str(e)
         timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
-        plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
         out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err))
     return out
 
@@ -150,12 +151,8 @@ def complete(points_cam: np.ndarray, *, support_plane: np.ndarray | None = None,
     return detailed_mesh(c.probabilities, c.frame, check_segment(points_cam), support_plane=c.support_plane)
 
 
-_SHIPPED: list[Completer] = []
-
-
+@lru_cache(maxsize=1)
 def _shipped_completer() -> Completer:
-    if not _SHIPPED:
-        from .model import load_completer
+    from .model import load_completer
 
-        _SHIPPED.append(load_completer())
-    return _SHIPPED[0]
+    return load_completer()

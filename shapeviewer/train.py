@@ -148,6 +148,9 @@ def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 
     """
     from .model import Completer
 
+    completer = net_or_completer
+    if not isinstance(completer, Completer):  # a network being trained: its own device, no pre-packing
+        completer = Completer(completer, "", device=next(completer.parameters()).device)
     out = {}
     for s, gs in sets.items():
         if len(gs) == 0:
@@ -157,14 +160,7 @@ def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 
         js, js_in = [], []
         for i in range(0, len(idx), batch):
             x, y, ctx = gs.grids(idx[i:i + batch])
-            if isinstance(net_or_completer, Completer):
-                p = net_or_completer.predict(x, context=ctx)
-            else:
-                net = net_or_completer
-                dev = next(net.parameters()).device
-                with torch.inference_mode():
-                    p = torch.sigmoid(net(network_input(x, ctx, getattr(net, "in_channels", 1)).to(dev)))[:, 0].cpu().numpy()
-                p[ctx.any(axis=1)] = 0.0
+            p = completer.predict(x, context=ctx)
             js.append(jaccard_grids(p > 0.5, y))
             js_in.append(jaccard_grids(x, y))
         out[s] = {"jaccard": float(np.concatenate(js).mean()), "input_jaccard": float(np.concatenate(js_in).mean()),
