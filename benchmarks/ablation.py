@@ -22,12 +22,12 @@ from collections import defaultdict
 
 import numpy as np
 
-from shapeviewer import dataset
+from shapeviewer.sim import catalogue
 from shapeviewer.baselines import hull_mesh
 from shapeviewer.metrics import hausdorff, sampled_jaccard
 from shapeviewer.model import load_completer
 from shapeviewer.reconstruct import detailed_mesh, fast_mesh
-from shapeviewer.viewsets import render_view, sample_views
+from shapeviewer.evaluation.viewsets import render_view, sample_views
 from shapeviewer.voxel import context_grids, partial_to_grid
 
 
@@ -54,7 +54,7 @@ def main() -> None:
         except ValueError as e:
             print(f"skip {name} {view}: {e}")
             continue
-        kind = dataset.shape_kind(name)
+        kind = catalogue.shape_kind(name)
         grid, frame = partial_to_grid(v.points_cam)
         ctx = context_grids(v.points_cam, frame, v.support_plane)
         base = {"object": name, "view": view, "view_set": view_set, "kind": kind, "sensor": v.sensor}

@@ -33,7 +33,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from shapeviewer.capture import Capture
-    from shapeviewer.results import ResultsStore, build_sample_store, sample_store_complete, sample_store_dir
+    from shapeviewer.evaluation.results import ResultsStore, build_sample_store, sample_store_complete, sample_store_dir
     from shapeviewer.viewer import ViewerApp
 
     root = args.results or sample_store_dir()

@@ -47,7 +47,7 @@ Case = tuple[str, trimesh.Trimesh, trimesh.Trimesh]  # name, true mesh (world), 
 
 def catalogue_cases(names: list[str]) -> list[Case]:
     """Each catalogue object standing on the table and its perfect-CNN completion (world frame)."""
-    from shapeviewer.dataset import load_mesh
+    from shapeviewer.sim.catalogue import load_mesh
 
     cases = []
     for name in names:
@@ -64,7 +64,7 @@ def scene_cases(seed: int) -> list[Case]:
     the CNN's fast mesh in the world frame (the scene's ``T_world_cam``), and that object's true mesh."""
     from shapeviewer.model import load_completer
     from shapeviewer.pipeline import complete_points
-    from shapeviewer.scene import default_scene
+    from shapeviewer.sim.demo_scene import default_scene
     from shapeviewer.segment import segment_scene
     from shapeviewer.viewer.grasps import ground_truth_object, object_mesh_world
 

@@ -87,7 +87,7 @@ def free_port() -> int:
 
 def load_captures(seeds: list[int]) -> list:
     from shapeviewer.capture import load_capture
-    from shapeviewer.scene import default_scene
+    from shapeviewer.sim.demo_scene import default_scene
 
     caps = [default_scene(s) for s in seeds]
     for name in ORGANIZED_REAL:

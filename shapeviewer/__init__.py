@@ -25,6 +25,7 @@ _API = {
     "completion_metrics": ".metrics",
     "plan_grasps": (".grasp.plan", "plan"),
     "execute_grasps": (".grasp.execute", "execute_grasps"),
+    "evaluate": (".evaluation.run", "evaluate"),
 }
 __all__ = sorted(_API)
 

@@ -1,7 +1,7 @@
 """Capture (paper Fig. 5, step 1): a depth camera's view of a tabletop as a camera-frame point cloud.
 
 A :class:`Capture` is what every later stage starts from, whether it came from the simulated
-Kinect of a generated scene (:mod:`shapeviewer.scene`) or from a real sensor file.
+Kinect of a generated scene (:mod:`shapeviewer.sim.demo_scene`) or from a real sensor file.
 
 Real files are read with :func:`load_capture` (dispatching on the suffix):
 
@@ -38,7 +38,7 @@ class SceneObject:
     """A ground-truth object of a synthetic scene.
 
     Attributes:
-        name: catalogue name (see :mod:`shapeviewer.dataset`).
+        name: catalogue name (see :mod:`shapeviewer.sim.catalogue`).
         mesh: watertight mesh in the object frame, metres.
         T_world_obj: 4x4 pose of the object in the world frame.
     """

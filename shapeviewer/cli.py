@@ -46,7 +46,7 @@ def _intrinsics(args, shape=None):
 def load_input(spec: str, seed: int = 0, intrinsics=None):
     """A :class:`~shapeviewer.capture.Capture` from ``default`` (the generated scene) or a file path."""
     if spec == "default":
-        from .scene import default_scene
+        from .sim.demo_scene import default_scene
 
         return default_scene(seed)
     from .capture import load_capture
@@ -169,7 +169,7 @@ def cmd_grasp(args) -> int:
         raise CLIError(f"--out {out}: the folder {out.parent} does not exist")
     if args.budget is not None and not args.budget > 0:
         raise CLIError(f"--budget must be a positive number of seconds, got {args.budget}")
-    from .grasp.export import plan_mesh_file
+    from .grasp.serialize import plan_mesh_file
 
     grasps = plan_mesh_file(args.mesh, args.out, hand=args.hand, n_grasps=args.n, seed=args.seed,
                             on_table=not args.no_table, budget_seconds=args.budget)
@@ -179,15 +179,15 @@ def cmd_grasp(args) -> int:
 
 
 def cmd_objects(args) -> int:
-    from . import dataset
+    from .sim import catalogue
 
     if args.write_index:
-        dataset.catalogue.cache_clear()
-        for p in (dataset.cache_dir() / f"catalogue_v{dataset.CATALOGUE_VERSION}.json", dataset.SHIPPED_INDEX):
+        catalogue.catalogue.cache_clear()
+        for p in (catalogue.cache_dir() / f"catalogue_v{catalogue.CATALOGUE_VERSION}.json", catalogue.SHIPPED_INDEX):
             p.unlink(missing_ok=True)  # rebuild from the meshes themselves
-        dataset.write_index(dataset.catalogue(), Path(args.write_index))
+        catalogue.write_index(catalogue.catalogue(), Path(args.write_index))
         print(f"catalogue index -> {args.write_index}")
-    rows = dataset.catalogue()
+    rows = catalogue.catalogue()
     if args.json:
         print(json.dumps([{"name": e.name, "split": e.split, "source": e.source,
                            "size_m": [round(x, 4) for x in e.extents]} for e in rows], indent=1))
@@ -242,7 +242,7 @@ def cmd_evaluate_grids(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluate import GRASP_METHODS, GraspOptions, evaluate
+    from .evaluation.run import GRASP_METHODS, GraspOptions, evaluate
 
     grasps = None
     if args.grasps:

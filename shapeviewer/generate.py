@@ -6,7 +6,7 @@ noise), 0.6-1.2 m away. X is the visible points voxelized with :func:`voxel.part
 Y is every voxel the solid object touches, in the same grid frame. Pairs with fewer than 100
 occupied X voxels, or with under 80% of X inside Y, are rejected (the paper's rule).
 
-With ``scenes="tabletop"`` the views are :mod:`shapeviewer.tabletop` views instead: the object
+With ``scenes="tabletop"`` the views are :mod:`shapeviewer.sim.tabletop` views instead: the object
 resting on a table among neighbours, a robot's camera (Kinect or RealSense noise), the segment cut
 by the app's own segmentation and the support plane it found; the 80% rule then allows one voxel
 of slack (segments carry flying pixels and a little of their neighbours).
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset
+from .sim import catalogue
 from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
 from .voxel import GRID_DIM, context_grids, partial_to_grid, points_to_grid, solid_grid, surface_samples
 
@@ -68,13 +68,13 @@ def view_indices(name: str, config: GenerationConfig) -> np.ndarray:
     total = int(np.prod(ORIENTATION_GRID))
     if config.views is None or config.views >= total:
         return np.arange(total)
-    rng = np.random.default_rng([config.seed, dataset.stable_percent(name), len(name)])
+    rng = np.random.default_rng([config.seed, catalogue.stable_percent(name), len(name)])
     return np.sort(rng.choice(total, size=config.views, replace=False))
 
 
 def view_pose(name: str, view: int, seed: int) -> np.ndarray:
     """T_cam_obj (4x4): the object's pose in the camera frame for one view (metres)."""
-    rng = np.random.default_rng([seed, dataset.stable_percent(name), len(name), view])
+    rng = np.random.default_rng([seed, catalogue.stable_percent(name), len(name), view])
     d = rng.uniform(*DISTANCE_RANGE)
     T = np.eye(4)
     T[:3, :3] = orientation(view)
@@ -85,7 +85,7 @@ def view_pose(name: str, view: int, seed: int) -> np.ndarray:
 
 def object_mesh(name: str):
     """A catalogue mesh centred on its bounding-box centre: the object frame that views are posed in."""
-    mesh = dataset.load_mesh(name)
+    mesh = catalogue.load_mesh(name)
     mesh.apply_translation(-mesh.bounding_box.centroid)
     return mesh
 
@@ -180,7 +180,7 @@ def _tabletop_examples(name: str, config: GenerationConfig):
     """Tabletop views (:func:`tabletop.render_tabletop_view`), ``config.views`` of them (default 32)."""
     from scipy import ndimage
 
-    from .tabletop import centred_mesh, render_tabletop_view
+    from .sim.tabletop import centred_mesh, render_tabletop_view
 
     mesh = centred_mesh(name)
     surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
@@ -220,7 +220,7 @@ def generate(out_dir: str | Path, config: GenerationConfig = GenerationConfig(),
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    names = objects or [e.name for e in dataset.catalogue()]
+    names = objects or [e.name for e in catalogue.catalogue()]
     tasks = [(n, str(out_dir), config) for n in names]
     t0 = time.perf_counter()
     results = []
@@ -274,8 +274,8 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
         with np.load(p) as z:
             views = z["views"].tolist()
         for v in views:
-            examples[dataset.view_split(name, v)] += 1
-        shards.append({"file": f"shards/{p.name}", "object": name, "split": dataset.model_split(name), "views": len(views)})
+            examples[catalogue.view_split(name, v)] += 1
+        shards.append({"file": f"shards/{p.name}", "object": name, "split": catalogue.model_split(name), "views": len(views)})
     manifest = {"version": 1, "grid": GRID_DIM, "orientation_grid": ORIENTATION_GRID,
                 "config": {"views": config.views, "noise": config.noise, "seed": config.seed, "scenes": config.scenes},
                 "camera": Intrinsics.kinect().to_dict(), "examples": examples, "shards": shards}

@@ -2,7 +2,7 @@
 drawn with replacement, Jaccard on Training Views, Holdout Views and Holdout Models (paper Fig. 4).
 
 Data: the shards written by :mod:`shapeviewer.generate`. Views of training models are split into
-training views and holdout views by :func:`shapeviewer.dataset.view_split`; only training views
+training views and holdout views by :func:`shapeviewer.sim.catalogue.view_split`; only training views
 are trained on.
 
 Outputs in the run directory: ``last.pt`` (resumable: model, optimiser, step, RNG state),
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from . import dataset
+from .sim import catalogue
 from .model import build, default_device, network_input, save_weights
 from .voxel import GRID_DIM
 
@@ -78,7 +78,7 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
             free = z["free"] if "free" in z else np.zeros_like(x)
             below = z["below"] if "below" in z else np.zeros_like(x)
         name = shard.stem.replace("__", "/")
-        split = np.array([dataset.view_split(name, int(v)) for v in views])
+        split = np.array([catalogue.view_split(name, int(v)) for v in views])
         for s in SETS:
             m = split == s
             if m.any():

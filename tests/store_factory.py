@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from shapeviewer import dataset
-from shapeviewer import evaluate as ev
+from shapeviewer.sim import catalogue
+from shapeviewer.evaluation import run as ev
 from shapeviewer.generate import view_pose
-from shapeviewer.results import view_stem, write_view_record
+from shapeviewer.evaluation.results import view_stem, write_view_record
 
 # (object, view): two views of one object, one of a holdout model, one of a pybullet object.
 VIEWS = (("ycb/025_mug", 3), ("ycb/025_mug", 40), ("ycb/006_mustard_bottle", 7), ("pybullet/duck", 11))
@@ -35,7 +35,7 @@ def jaccard_of(name: str, view: int, method: str) -> float:
 
 def truth_cam(name: str, view: int) -> trimesh.Trimesh:
     """A box of the object's catalogue size, posed in the view's camera frame."""
-    box = trimesh.creation.box(extents=dataset.entry(name).extents)
+    box = trimesh.creation.box(extents=catalogue.entry(name).extents)
     box.apply_transform(view_pose(name, view, 0))
     return box
 
@@ -50,7 +50,7 @@ def visible_points(mesh_cam: trimesh.Trimesh, n: int = 600, seed: int = 0) -> np
 def grasp_doc(completion_cam: trimesh.Trimesh, n: int = 2) -> str:
     """A grasps file: ``n`` Barrett grasps above the completion (evaluation world frame) and their executions."""
     from shapeviewer.grasp.execute import ExecutionResult, LiftResult
-    from shapeviewer.grasp.export import grasps_to_json
+    from shapeviewer.grasp.serialize import grasps_to_json
     from shapeviewer.grasp.hands import get_hand
     from shapeviewer.grasp.plan import Grasp
 
@@ -82,7 +82,7 @@ def write_view(root: Path, name: str, view: int, old_format: bool = False, faile
     truth = truth_cam(name, view)
     truth.export(meshes / f"{stem}__truth.ply")
     trimesh.PointCloud(visible_points(truth)).export(meshes / f"{stem}__points.ply")
-    view_set = dataset.view_split(name, view)
+    view_set = catalogue.view_split(name, view)
     rows = []
     for m in ev.METHODS:
         row = {"object": name, "view": view, "view_set": view_set, "method": m}

@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from shapeviewer.baselines import PARTIAL_LEAF_FACTOR, find_mirror_plane, mirror_mesh, partial_mesh
 from shapeviewer.camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid, look_at
-from shapeviewer.dataset import load_mesh
+from shapeviewer.sim.catalogue import load_mesh
 from shapeviewer.metrics import hausdorff, jaccard
 from shapeviewer.reconstruct import mean_nn_distance
 

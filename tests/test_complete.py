@@ -7,7 +7,7 @@ import shapeviewer
 from shapeviewer.baselines import hull_mesh
 from shapeviewer.model import load_completer
 from shapeviewer.pipeline import SegmentTooSmallError
-from shapeviewer.tabletop import render_tabletop_view
+from shapeviewer.sim.tabletop import render_tabletop_view
 from shapeviewer.voxel import context_grids, partial_to_grid
 
 

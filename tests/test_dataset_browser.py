@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.results import ResultsStore, view_stem
+from shapeviewer.evaluation.results import ResultsStore, view_stem
 
 from store_factory import VIEWS, make_store
 from test_browser import browser_page, free_port, needs_browser, wait_until

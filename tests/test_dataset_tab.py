@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer import evaluate as ev
+from shapeviewer.evaluation import run as ev
 from shapeviewer.camera import transform_points
-from shapeviewer.grasp.export import grasps_from_json
-from shapeviewer.results import ResultsStore, view_stem
+from shapeviewer.grasp.serialize import grasps_from_json
+from shapeviewer.evaluation.results import ResultsStore, view_stem
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view
 

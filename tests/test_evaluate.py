@@ -1,4 +1,4 @@
-"""The paper's completion and grasp tables: `shapeviewer.evaluate` end to end on one view per set."""
+"""The paper's completion and grasp tables: `shapeviewer.evaluation.run` end to end on one view per set."""
 
 import csv
 import json
@@ -8,9 +8,9 @@ import shutil
 import numpy as np
 import pytest
 
-from shapeviewer import evaluate as ev
+from shapeviewer.evaluation import run as ev
 from shapeviewer.cli import main
-from shapeviewer.viewsets import PAPER_SETS, TABLETOP_SETS, TABLETOP_VIEW_OFFSET
+from shapeviewer.evaluation.viewsets import PAPER_SETS, TABLETOP_SETS, TABLETOP_VIEW_OFFSET
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def test_sample_views_seeded_and_split():
     assert a == ev.sample_views(3, seed=0)
     assert a != ev.sample_views(3, seed=1)
     assert [s for *_, s in a] == [s for s in PAPER_SETS for _ in range(3)]
-    from shapeviewer.dataset import view_split
+    from shapeviewer.sim.catalogue import view_split
 
     assert all(view_split(n, v) == s and 0 <= v < 726 for n, v, s in a)
     assert len(set((n, v) for n, v, _ in a)) == len(a)
@@ -70,7 +70,7 @@ def test_tabletop_views_are_segmented_on_a_table_and_reported_per_kind(tmp_path)
     views = ev.sample_views(2, seed=0, views="tabletop")
     assert [s for *_, s in views] == [s for s in TABLETOP_SETS for _ in range(2)]
     assert all(v >= TABLETOP_VIEW_OFFSET for _, v, _ in views)  # never a view the training data used
-    from shapeviewer.dataset import model_split
+    from shapeviewer.sim.catalogue import model_split
 
     assert [model_split(n) for n, *_ in views] == ["train", "train", "holdout_model", "holdout_model"]
     r = ev.evaluate(tmp_path, n_per_set=1, seed=0, workers=1, progress=False, views="tabletop")
@@ -185,7 +185,7 @@ def grasp_run(run, tmp_path_factory):
 
 
 def test_grasp_stage_records(grasp_run):
-    from shapeviewer.grasp.export import grasps_from_json
+    from shapeviewer.grasp.serialize import grasps_from_json
 
     out, options, r = grasp_run
     assert r["computed"] == 3

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer import dataset
+from shapeviewer.sim import catalogue
 from shapeviewer.generate import (GenerationConfig, generate, generate_object, orientation, view_pose,
                                   write_manifest)
 from shapeviewer.train import load_grid_sets
@@ -41,7 +41,7 @@ def test_pairs_have_x_mostly_inside_y_in_the_right_frame(generated):
         inside = (x & y).sum((1, 2, 3)) / x.sum((1, 2, 3))
         assert np.median(inside) >= 0.8
         assert (y.sum((1, 2, 3)) > 2 * x.sum((1, 2, 3))).all()  # Y adds the occluded back
-        mesh = dataset.load_mesh(name)
+        mesh = catalogue.load_mesh(name)
         mesh.apply_translation(-mesh.bounding_box.centroid)
         for i in range(len(views)):
             frame = GridFrame(centers[i], sizes[i])
@@ -84,12 +84,12 @@ def test_generation_resumes_without_redoing_work(generated):
 
 
 def test_split_rule_is_stable():
-    assert dataset.model_split("ycb/035_power_drill") == "holdout_model"
-    assert dataset.model_split("ycb/025_mug") == "train"
+    assert catalogue.model_split("ycb/035_power_drill") == "holdout_model"
+    assert catalogue.model_split("ycb/025_mug") == "train"
     names = [f"random/{i:03d}" for i in range(1000)]
-    frac = np.mean([dataset.model_split(n) == "holdout_model" for n in names])
+    frac = np.mean([catalogue.model_split(n) == "holdout_model" for n in names])
     assert 0.12 < frac < 0.18
-    views = [dataset.view_split("ycb/025_mug", v) for v in range(726)]
+    views = [catalogue.view_split("ycb/025_mug", v) for v in range(726)]
     assert 0.15 < views.count("holdout_view") / 726 < 0.25
 
 

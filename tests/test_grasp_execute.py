@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from shapeviewer.grasp import execute as E
-from shapeviewer.grasp import export as X
+from shapeviewer.grasp import serialize as X
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import PlanSettings, plan
 

@@ -5,7 +5,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from shapeviewer import dataset, household
+from shapeviewer.sim import catalogue
+from shapeviewer.sim import household
 
 INDICES = (0, 1, 7)
 HOLLOW = ("mug", "cup", "bowl", "pitcher")
@@ -85,46 +86,46 @@ def test_unknown_kind_is_refused():
 
 
 def test_catalogue_lists_every_kind_with_both_splits():
-    entries = [e for e in dataset.catalogue() if e.source == "household"]
-    assert len(entries) == len(household.KINDS) * dataset.HOUSEHOLD_PER_KIND
-    splits = Counter((dataset.shape_kind(e.name), e.split) for e in entries)
+    entries = [e for e in catalogue.catalogue() if e.source == "household"]
+    assert len(entries) == len(household.KINDS) * catalogue.HOUSEHOLD_PER_KIND
+    splits = Counter((catalogue.shape_kind(e.name), e.split) for e in entries)
     for kind in household.KINDS:
         assert splits[kind, "train"] > 0 and splits[kind, "holdout_model"] > 0, kind
     assert 0.1 < sum(e.split == "holdout_model" for e in entries) / len(entries) < 0.2
-    e = dataset.entry("household/mug_003")
-    assert e.path == "household:mug/3" and e.scale == (1.0, 1.0, 1.0) and e.split == dataset.model_split(e.name)
-    assert dataset.view_split("household/mug_003", 5) in ("training_view", "holdout_view", "holdout_model")
+    e = catalogue.entry("household/mug_003")
+    assert e.path == "household:mug/3" and e.scale == (1.0, 1.0, 1.0) and e.split == catalogue.model_split(e.name)
+    assert catalogue.view_split("household/mug_003", 5) in ("training_view", "holdout_view", "holdout_model")
     # the rest of the catalogue is still there
-    assert any(x.source == "ycb" for x in dataset.catalogue()) and any(x.name.startswith("random/") for x in dataset.catalogue())
+    assert any(x.source == "ycb" for x in catalogue.catalogue()) and any(x.name.startswith("random/") for x in catalogue.catalogue())
 
 
 def test_load_mesh_builds_and_caches(tmp_path, monkeypatch):
     monkeypatch.setenv("SHAPEVIEWER_CACHE", str(tmp_path))
-    m = dataset.load_mesh("household/mug_003")
+    m = catalogue.load_mesh("household/mug_003")
     assert m.is_watertight and m.euler_number == 0
-    assert dataset._cache_path("household/mug_003").exists()
-    cached = dataset.load_mesh("household/mug_003")
+    assert catalogue._cache_path("household/mug_003").exists()
+    cached = catalogue.load_mesh("household/mug_003")
     np.testing.assert_array_equal(cached.vertices, m.vertices)
     np.testing.assert_array_equal(cached.faces, m.faces)
-    e = dataset.entry("household/mug_003")
+    e = catalogue.entry("household/mug_003")
     assert len(m.faces) == e.faces
     np.testing.assert_allclose(m.extents, e.extents, atol=1e-6)
     with pytest.raises(KeyError):
-        dataset.load_mesh(f"household/mug_{dataset.HOUSEHOLD_PER_KIND:03d}")
+        catalogue.load_mesh(f"household/mug_{catalogue.HOUSEHOLD_PER_KIND:03d}")
 
 
 def test_shape_kind():
-    assert dataset.shape_kind("ycb/025_mug") == "mug"
-    assert dataset.shape_kind("ycb/003_cracker_box") == "box"
-    assert dataset.shape_kind("ycb/035_power_drill") == "drill"
-    assert dataset.shape_kind("ycb/011_banana") == "banana"
-    assert dataset.shape_kind("household/drill_001") == "drill"
-    assert dataset.shape_kind("household/spray_bottle_012") == "spray_bottle"
-    assert dataset.shape_kind("random/042") == "random"
-    assert dataset.shape_kind("pybullet/mug") == "mug"
-    assert dataset.shape_kind("pybullet/duck") == "other"
-    ycb = [e.name for e in dataset.catalogue() if e.source == "ycb"]
+    assert catalogue.shape_kind("ycb/025_mug") == "mug"
+    assert catalogue.shape_kind("ycb/003_cracker_box") == "box"
+    assert catalogue.shape_kind("ycb/035_power_drill") == "drill"
+    assert catalogue.shape_kind("ycb/011_banana") == "banana"
+    assert catalogue.shape_kind("household/drill_001") == "drill"
+    assert catalogue.shape_kind("household/spray_bottle_012") == "spray_bottle"
+    assert catalogue.shape_kind("random/042") == "random"
+    assert catalogue.shape_kind("pybullet/mug") == "mug"
+    assert catalogue.shape_kind("pybullet/duck") == "other"
+    ycb = [e.name for e in catalogue.catalogue() if e.source == "ycb"]
     assert len(ycb) == 78
-    assert all(n.partition("/")[2] in dataset.YCB_KIND for n in ycb)
-    kinds = {dataset.shape_kind(n) for n in ycb}
+    assert all(n.partition("/")[2] in catalogue.YCB_KIND for n in ycb)
+    kinds = {catalogue.shape_kind(n) for n in ycb}
     assert set(household.KINDS) - {"jar"} <= kinds  # every household family but jar has a YCB counterpart

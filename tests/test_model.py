@@ -66,7 +66,7 @@ def test_varley2017_is_the_papers_network_and_trains_on_cpu():
 def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     from scipy import ndimage
 
-    from shapeviewer.tabletop import render_tabletop_view
+    from shapeviewer.sim.tabletop import render_tabletop_view
     from shapeviewer.voxel import context_grids, partial_to_grid
 
     v = render_tabletop_view("ycb/025_mug", 5, seed=3)

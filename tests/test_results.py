@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer import evaluate as ev
+from shapeviewer.evaluation import run as ev
 from shapeviewer.camera import transform_points
-from shapeviewer.results import ResultsStore, parse_view_file, view_stem
+from shapeviewer.evaluation.results import ResultsStore, parse_view_file, view_stem
 
 from store_factory import VIEWS, jaccard_of, make_store, truth_cam, write_view
 
@@ -135,14 +135,14 @@ def test_half_written_file_is_skipped_then_read(folder, caplog):
     path = root / "views" / f"{view_stem(name, view)}.json"
     full = path.read_text()
     path.write_text(full[: len(full) // 2])  # a run killed while writing (no atomic rename)
-    with caplog.at_level(logging.WARNING, logger="shapeviewer.results"):
+    with caplog.at_level(logging.WARNING, logger="shapeviewer.evaluation.results"):
         report = store.sync()
     assert report.skipped and report.skipped[0][0] == f"views/{path.name}" and "not JSON" in report.skipped[0][1]
     assert "skipping" in caplog.text
     assert store.counts()["views"] == 4 and store.counts()["skipped"] == 1
     assert store.views(name) == []
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="shapeviewer.results"):
+    with caplog.at_level(logging.WARNING, logger="shapeviewer.evaluation.results"):
         assert not store.sync().changed  # unchanged bad file: not re-read, no second warning
     assert "skipping" not in caplog.text
     path.write_text(full)
@@ -188,7 +188,7 @@ def test_sync_is_incremental_and_forgets_deleted_views(folder):
 
 
 def test_parse_rejects_a_view_file_without_rows(tmp_path):
-    from shapeviewer.results import ViewFileError
+    from shapeviewer.evaluation.results import ViewFileError
 
     for text, why in (("[]", "no rows"), ('{"object": "a", "view": 1}', "no 'rows'"), ("3", "not a view"),
                       ('[{"view": 1, "method": "Partial"}]', "no object name")):

@@ -9,7 +9,7 @@ import trimesh
 
 from shapeviewer.camera import Intrinsics, transform_points
 from shapeviewer.capture import Capture, SceneObject
-from shapeviewer.scene import build_tabletop, capture_scene, default_scene
+from shapeviewer.sim.demo_scene import build_tabletop, capture_scene, default_scene
 
 
 def world_mesh(obj: SceneObject) -> trimesh.Trimesh:

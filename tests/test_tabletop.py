@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from shapeviewer.camera import KinectNoise, RealSenseNoise, noise_model
-from shapeviewer.tabletop import render_tabletop_view
+from shapeviewer.sim.tabletop import render_tabletop_view
 from shapeviewer.voxel import below_plane, context_grids, partial_to_grid, solid_grid
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from shapeviewer.camera import transform_points
-from shapeviewer.grasp.export import grasps_from_json
+from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer import grasps as G
 

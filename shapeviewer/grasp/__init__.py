@@ -8,7 +8,7 @@
 - :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan_grasps`).
 - :mod:`shapeviewer.grasp.execute`: the paper's execution on the true object, joint and pose
   errors, and a dynamic lift test.
-- :mod:`shapeviewer.grasp.export`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.
+- :mod:`shapeviewer.grasp.serialize`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.
 
 Units are metres and radians throughout; frames are named in every docstring.
 """

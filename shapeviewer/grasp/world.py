@@ -30,7 +30,7 @@ import numpy as np
 import pybullet as p
 import trimesh
 
-from shapeviewer.dataset import cache_dir
+from shapeviewer.sim.catalogue import cache_dir
 from shapeviewer.grasp.hands import (
     Hand, HandBody, get_base_pose, load_hand, palm_pose, set_base_pose, set_joint_positions, set_joints,
     set_palm_pose,

@@ -474,7 +474,7 @@ class ViewerApp:
     # Loading
 
     def _default_capture(self, seed: int) -> Capture:
-        from ..scene import default_scene  # pybullet and the object catalogue: only when needed
+        from ..sim.demo_scene import default_scene  # pybullet and the object catalogue: only when needed
 
         return default_scene(int(seed))
 

@@ -1,4 +1,4 @@
-"""The Dataset tab: browse a results store (:mod:`shapeviewer.results`) like the paper's website (SPEC §9).
+"""The Dataset tab: browse a results store (:mod:`shapeviewer.evaluation.results`) like the paper's website (SPEC §9).
 
 The tab lists the catalogue objects with their results, and shows one view at a time in 3D, left
 to right as in the paper's Fig. 1: the ground truth, the partial view (points), then each method's
@@ -38,8 +38,8 @@ import viser
 
 from .. import export
 from ..camera import transform_points
-from ..evaluate import METHODS, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS, paper_figure
-from ..results import HIGHER_IS_BETTER, KINDS, METRIC_TITLES, CompletionResult, GraspSummary, ObjectSummary, \
+from ..evaluation.run import METHODS, PAPER_COLUMN, PAPER_GRASP, SET_TITLES, VIEW_SETS, paper_figure
+from ..evaluation.results import HIGHER_IS_BETTER, KINDS, METRIC_TITLES, CompletionResult, GraspSummary, ObjectSummary, \
     ResultsStore, ViewInfo, build_sample_store, read_mesh, read_points, sample_store_complete, sample_store_dir
 
 log = logging.getLogger(__name__)

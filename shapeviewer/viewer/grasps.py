@@ -39,7 +39,7 @@ import viser
 from ..camera import transform_points
 from ..capture import Capture, SceneObject
 from ..grasp.execute import ExecutionResult, execute_grasps, lift_test
-from ..grasp.export import grasps_to_json, scene_zip
+from ..grasp.serialize import grasps_to_json, scene_zip
 from ..grasp.hands import HAND_NAMES, Hand, get_hand, hand_meshes
 from ..grasp.plan import Grasp, PlanStats, plan
 from ..segment import Segment

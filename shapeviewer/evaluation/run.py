@@ -1,7 +1,7 @@
 """The paper's completion tables (Tables I-III, SPEC §7): Partial, Mirror, Ours-fast, Ours-detailed.
 
 Test set (as in the paper): ``n_per_set`` views of each of the three evaluation sets,
-*training views*, *holdout views* and *holdout models* (:func:`dataset.view_split`), drawn with a
+*training views*, *holdout views* and *holdout models* (:func:`catalogue.view_split`), drawn with a
 seed from the catalogue objects and the 726-view orientation grid. Each view is rendered exactly as
 the training data is (:func:`generate.view_pose`, :func:`generate.render_view` with the live camera
 model ``Intrinsics.kinect()`` and ``KinectNoise``, the same noise seed as ``generate``), so a
@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset
+from ..sim import catalogue
 from .viewsets import SET_TITLES, VIEW_SETS, render_view, sample_views
 
 log = logging.getLogger(__name__)
@@ -115,16 +115,16 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
 
     Tabletop views give the support plane the segmentation found to Mirror and to our completion.
     """
-    from .baselines import hull_mesh, mirror_mesh, partial_mesh
-    from .metrics import completion_metrics
-    from .reconstruct import detailed_mesh, fast_mesh
-    from .voxel import context_grids, partial_to_grid
+    from ..baselines import hull_mesh, mirror_mesh, partial_mesh
+    from ..metrics import completion_metrics
+    from ..reconstruct import detailed_mesh, fast_mesh
+    from ..voxel import context_grids, partial_to_grid
 
-    view_set = view_set or dataset.view_split(name, view)
+    view_set = view_set or catalogue.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
     mesh_dir.mkdir(parents=True, exist_ok=True)
     stem = _stem(name, view)
-    base = {"object": name, "view": int(view), "view_set": view_set, "kind": dataset.shape_kind(name), "sensor": ""}
+    base = {"object": name, "view": int(view), "view_set": view_set, "kind": catalogue.shape_kind(name), "sensor": ""}
     try:
         observed = render_view(name, view, view_set, seed)
     except Exception as e:  # unrenderable view: every method records it
@@ -233,7 +233,7 @@ def load_view(out_dir, name: str, view: int, seed: int | None = None) -> dict | 
         return None
     data = json.loads(path.read_text())
     if isinstance(data, list):
-        view_set = data[0]["view_set"] if data else dataset.view_split(name, view)
+        view_set = data[0]["view_set"] if data else catalogue.view_split(name, view)
         return view_record(out_dir, name, view, view_set, -1 if seed is None else seed, data)
     data.setdefault("grasps", [])
     return data
@@ -308,7 +308,7 @@ def grasp_world(record: dict) -> tuple[np.ndarray, bool]:
     object, the evaluation world frame ``T_WORLD_CAM`` without a table."""
     if record.get("support_plane") is None:
         return T_WORLD_CAM, False
-    from .segment import table_frame
+    from ..segment import table_frame
 
     return table_frame(np.asarray(record["support_plane"], dtype=np.float64)), True
 
@@ -356,9 +356,9 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
     "lift_success_best", "n_requested", "plan_seed", "seconds_plan", "seconds_execute", "frame",
     "error"}``; a failure (no mesh, planner error) records ``error`` and NaN means.
     """
-    from .grasp.execute import execute_grasps
-    from .grasp.export import grasps_to_json
-    from .grasp.plan import PlanSettings, plan
+    from ..grasp.execute import execute_grasps
+    from ..grasp.serialize import grasps_to_json
+    from ..grasp.plan import PlanSettings, plan
 
     out = Path(out_dir)
     name, view = record["object"], int(record["view"])
@@ -415,7 +415,7 @@ def pending_grasps(record: dict, options: GraspOptions) -> list[str]:
 
 def load_grasp_rows(out_dir, records: list[dict]) -> list[dict]:
     """Every executed grasp of the records' grasp entries, read back from their grasp files."""
-    from .grasp.export import grasps_from_json
+    from ..grasp.serialize import grasps_from_json
 
     rows = []
     for rec in records:
@@ -447,7 +447,7 @@ def _init_worker(weights, threads: int) -> None:
 def _completer():
     """The worker's CNN, loaded on first use (a grasp-only rerun never needs it)."""
     if "completer" not in _WORKER:
-        from .model import load_completer
+        from ..model import load_completer
 
         _WORKER["completer"] = load_completer(_WORKER.get("weights"))
     return _WORKER["completer"]
@@ -485,7 +485,7 @@ def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=No
     """Run the test set (resumable), then write ``rows.csv``, ``tables.md`` and ``tables.csv``
     (and with ``grasps``, ``grasp_rows.csv`` and Tables IV/V).
 
-    ``views``: ``paper`` (the paper's three view sets) or ``tabletop`` (:mod:`shapeviewer.viewsets`).
+    ``views``: ``paper`` (the paper's three view sets) or ``tabletop`` (:mod:`shapeviewer.evaluation.viewsets`).
     ``grasps``: True or a :class:`GraspOptions` adds the grasp stage; finished completions are
     read from ``meshes/``, never recomputed. Returns ``{"computed", "skipped", "rows", "summary",
     "grasp_rows", "grasp_summary", "tables_md", "seconds"}``; ``summary`` is ``{view_set:
@@ -644,7 +644,7 @@ def tables_markdown(summary: dict, n_per_set: int | None = None, seed: int | Non
 
 
 def kind_table_markdown(rows: list[dict]) -> str:
-    """J80 and mean surface distance per view set and shape kind (:func:`dataset.shape_kind`), so
+    """J80 and mean surface distance per view set and shape kind (:func:`catalogue.shape_kind`), so
     that a weak family shows; empty when the rows carry no kinds."""
     kinds = sorted({r.get("kind", "") for r in rows} - {""})
     if not kinds:

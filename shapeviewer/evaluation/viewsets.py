@@ -1,16 +1,16 @@
 """The test views of ``shapeviewer evaluate``: the paper's three view sets and the tabletop set.
 
 * ``paper`` (as in the paper): *training views*, *holdout views* and *holdout models*
-  (:func:`dataset.view_split`), drawn with a seed from the catalogue objects and the 726-view
+  (:func:`catalogue.view_split`), drawn with a seed from the catalogue objects and the 726-view
   orientation grid, each rendered exactly as the training data is (:func:`generate.view_pose`,
   :func:`generate.render_view`, the Kinect model and the same noise seed), so a *training view*
   here is the very view the network may have trained on. The object floats: no table.
-* ``tabletop`` (how a robot uses completion, :mod:`shapeviewer.tabletop`): the object rests on a
+* ``tabletop`` (how a robot uses completion, :mod:`shapeviewer.sim.tabletop`): the object rests on a
   table among neighbours, a Kinect or RealSense looks from 20-70 degrees above the table at
   0.4-1.2 m, and the app's own segmentation cuts the segment and finds the support plane. Two
   sets: *tabletop, training objects* (views numbered from ``TABLETOP_VIEW_OFFSET``, which training
   data never uses) and *tabletop, holdout models*. Objects are drawn kind by kind
-  (:func:`dataset.shape_kind`), so every family of shapes is represented.
+  (:func:`catalogue.shape_kind`), so every family of shapes is represented.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from . import dataset
+from ..sim import catalogue
 
 PAPER_SETS = ("training_view", "holdout_view", "holdout_model")
 TABLETOP_SETS = ("tabletop_train_object", "tabletop_holdout_model")
@@ -63,13 +63,13 @@ def sample_views(n_per_set: int = 50, seed: int = 0, views: str = "paper") -> li
 
 def _sample_paper(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
     """Holdout-model views: a holdout object, then a view, uniformly. Training/holdout views: a
-    training object, then a view, until the view's :func:`dataset.view_split` is the wanted set."""
-    from .generate import ORIENTATION_GRID
+    training object, then a view, until the view's :func:`catalogue.view_split` is the wanted set."""
+    from ..generate import ORIENTATION_GRID
 
     rng = np.random.default_rng([seed, 4])
-    names = sorted(e.name for e in dataset.catalogue())
-    by_split = {"train": [n for n in names if dataset.model_split(n) == "train"],
-                "holdout_model": [n for n in names if dataset.model_split(n) == "holdout_model"]}
+    names = sorted(e.name for e in catalogue.catalogue())
+    by_split = {"train": [n for n in names if catalogue.model_split(n) == "train"],
+                "holdout_model": [n for n in names if catalogue.model_split(n) == "holdout_model"]}
     total = int(np.prod(ORIENTATION_GRID))
     out: list[tuple[str, int, str]] = []
     for view_set in PAPER_SETS:
@@ -82,7 +82,7 @@ def _sample_paper(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
                 break
             name = pool[int(rng.integers(len(pool)))]
             view = int(rng.integers(total))
-            if (name, view) not in chosen and dataset.view_split(name, view) == view_set:
+            if (name, view) not in chosen and catalogue.view_split(name, view) == view_set:
                 chosen.add((name, view))
                 out.append((name, view, view_set))
     return out
@@ -94,9 +94,9 @@ def _sample_tabletop(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
     out: list[tuple[str, int, str]] = []
     for view_set, split in zip(TABLETOP_SETS, ("train", "holdout_model")):
         by_kind: dict[str, list[str]] = {}
-        for e in dataset.catalogue():
+        for e in catalogue.catalogue():
             if e.split == split and TABLETOP_SIZE[0] <= max(e.extents) <= TABLETOP_SIZE[1]:
-                by_kind.setdefault(dataset.shape_kind(e.name), []).append(e.name)
+                by_kind.setdefault(catalogue.shape_kind(e.name), []).append(e.name)
         kinds = sorted(by_kind)
         if not kinds:
             raise ValueError(f"no catalogue object for {view_set}")
@@ -110,10 +110,10 @@ def _sample_tabletop(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
 
 def view_set_of(name: str, view: int) -> str:
     """The view set a view number belongs to: tabletop views are numbered from
-    ``TABLETOP_VIEW_OFFSET``, the paper's views by :func:`dataset.view_split`."""
+    ``TABLETOP_VIEW_OFFSET``, the paper's views by :func:`catalogue.view_split`."""
     if view >= TABLETOP_VIEW_OFFSET:
-        return TABLETOP_SETS[dataset.model_split(name) == "holdout_model"]
-    return dataset.view_split(name, view)
+        return TABLETOP_SETS[catalogue.model_split(name) == "holdout_model"]
+    return catalogue.view_split(name, view)
 
 
 def render_view(name: str, view: int, view_set: str, seed: int = 0) -> EvalView:
@@ -123,14 +123,14 @@ def render_view(name: str, view: int, view_set: str, seed: int = 0) -> EvalView:
         ValueError: a tabletop view that did not come out (the target hidden or not segmented).
     """
     if view_set in TABLETOP_SETS:
-        from .tabletop import render_tabletop_view
+        from ..sim.tabletop import render_tabletop_view
 
         v = render_tabletop_view(name, view, seed=seed)
         if v is None:
             raise ValueError(f"tabletop view {view} of {name}: the object was hidden or not segmented")
         return EvalView(v.points_cam, v.truth_cam(), v.plane_cam, v.sensor)
-    from .camera import Intrinsics, KinectNoise, RaycastRenderer
-    from .generate import noise_seed, object_mesh, render_view as render_object, view_pose
+    from ..camera import Intrinsics, KinectNoise, RaycastRenderer
+    from ..generate import noise_seed, object_mesh, render_view as render_object, view_pose
 
     mesh = object_mesh(name)
     T = view_pose(name, view, seed)

@@ -2,7 +2,7 @@
 pybullet and seen by a simulated Kinect.
 
 Frames and units: the world frame has z up, metres, and the table top is the plane z = 0. Object
-meshes are in their catalogue object frame (:mod:`shapeviewer.dataset`); ``T_world_obj`` maps them to
+meshes are in their catalogue object frame (:mod:`shapeviewer.sim.catalogue`); ``T_world_obj`` maps them to
 the world. The capture is in the camera optical frame (x right, y down, z forward, metres) with
 ``T_world_cam`` its pose in the world.
 
@@ -19,10 +19,10 @@ import pybullet
 import trimesh
 from pybullet_utils.bullet_client import BulletClient
 
-from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject, look_at, transform_points
-from .capture import Capture, SceneObject
-from .dataset import catalogue, load_mesh
-from .grasp.world import convex_decomposition
+from ..camera import Intrinsics, KinectNoise, RaycastRenderer, backproject, look_at, transform_points
+from ..capture import Capture, SceneObject
+from .catalogue import catalogue, load_mesh
+from ..grasp.world import convex_decomposition
 
 # YCB objects that look like a tabletop and stand (or lie) stably; the bowl, mugs and cups are
 # concave and show why completion needs more than a convex hull.

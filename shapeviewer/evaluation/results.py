@@ -45,8 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset
-from .evaluate import METHODS, METRICS, PAPER_COLUMN, PAPER_GRASP, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, \
+from ..sim import catalogue
+from .run import METHODS, METRICS, PAPER_COLUMN, PAPER_GRASP, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, \
     tables_markdown
 
 log = logging.getLogger(__name__)
@@ -269,7 +269,7 @@ def parse_view_file(text: str, rel_path: str, root: Path) -> dict:
         if not isinstance(r, dict) or r.get("object", name) != name or int(r.get("view", view)) != view \
                 or "method" not in r:
             raise ViewFileError("rows of different views, or without a method")
-    view_set = str(head.get("view_set") or (rows[0].get("view_set") if rows else "") or dataset.view_split(name, view))
+    view_set = str(head.get("view_set") or (rows[0].get("view_set") if rows else "") or catalogue.view_split(name, view))
     stem = view_stem(name, view)
     if not isinstance(files, dict):
         files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS}
@@ -368,7 +368,7 @@ class ResultsStore:
     def _sync_catalogue(self, db: sqlite3.Connection) -> None:
         """Put every catalogue object in the objects table (the index lists objects without results too)."""
         try:
-            entries = dataset.catalogue()
+            entries = catalogue.catalogue()
         except Exception as e:  # no catalogue (missing packages): list the objects the results know
             log.warning("object catalogue unavailable (%s); listing only objects with results", e)
             return
@@ -409,7 +409,7 @@ class ResultsStore:
                 self._delete_view(db, prev[0], prev[1])
             self._delete_view(db, name, view)
             db.execute("INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
-                       (name, dataset.model_split(name), name.partition("/")[0] if "/" in name else "unknown"))
+                       (name, catalogue.model_split(name), name.partition("/")[0] if "/" in name else "unknown"))
             db.execute("INSERT INTO views VALUES (?, ?, ?, ?, ?, ?, ?)",
                        (name, view, parsed["view_set"], parsed["seed"], rel, files.get("truth"), files.get("points")))
             completions = {}
@@ -580,7 +580,7 @@ class ResultsStore:
             if wanted is not None and r[0] not in wanted:
                 continue
             d = dict(zip(("object", "view", "view_set", "method", *METRICS, "seconds", "error"), r))
-            d.update(kind=dataset.shape_kind(d["object"]), sensor="")
+            d.update(kind=catalogue.shape_kind(d["object"]), sensor="")
             for k in (*METRICS, "seconds"):
                 d[k] = _undb(d[k])
             d["error"] = d["error"] or ""
@@ -662,7 +662,7 @@ class ResultsStore:
         The evaluation renders each view as the training data is (:func:`generate.view_pose` of
         name, view and seed), so the pose follows from those three numbers.
         """
-        from .generate import view_pose
+        from ..generate import view_pose
 
         info = self.view(name, view)
         return view_pose(name, view, 0 if info.seed is None else info.seed)
@@ -675,8 +675,8 @@ class ResultsStore:
         floating, without a table; this puts a virtual floor under it), and ``objects`` holds the
         ground truth there, so the viewer draws the capture upright with its sensor.
         """
-        from .camera import Intrinsics
-        from .capture import Capture, SceneObject
+        from ..camera import Intrinsics
+        from ..capture import Capture, SceneObject
 
         points = self.load_points(name, view)
         T_obj_cam = np.linalg.inv(self.T_cam_obj(name, view))
@@ -690,7 +690,7 @@ class ResultsStore:
 
     def grasp_set(self, name: str, view: int, method: str, hand: str | None = None):
         """The grasps planned on ``method``'s completion (:class:`grasp.export.GraspSet`), or None."""
-        from .grasp.export import grasps_from_json
+        from ..grasp.serialize import grasps_from_json
 
         for g in self.grasps(name, view):
             if g.method == method and (hand is None or g.hand == hand) and g.file:
@@ -801,22 +801,22 @@ SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completion
 def sample_grasp_options():
     """Grasps of the sample store: 5 Barrett grasps per completion from a smaller (still
     deterministic) search than the evaluation's, about 5 s per view and method on 2 cores."""
-    from .evaluate import GraspOptions
-    from .grasp.plan import PlanSettings
+    from .run import GraspOptions
+    from ..grasp.plan import PlanSettings
 
     return GraspOptions(n_grasps=5, settings=PlanSettings(samples=256, chains=16, steps=100, simulate=15))
 
 
 def sample_store_dir(weights: str | Path | None = None) -> Path:
-    """Where the sample store of the given CNN weights lives (under :func:`dataset.cache_dir`).
+    """Where the sample store of the given CNN weights lives (under :func:`catalogue.cache_dir`).
 
     The folder name holds a hash of the weights file, so new weights get a new sample store.
     """
-    from .model import DEFAULT_WEIGHTS
+    from ..model import DEFAULT_WEIGHTS
 
     path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
     tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
-    return dataset.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
+    return catalogue.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
 
 
 def sample_store_complete(root: str | Path) -> bool:
@@ -834,7 +834,7 @@ def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMP
     called before each step and at the end; the store is synced after every step so that a reader
     sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
     """
-    from .evaluate import evaluate_view, grasp_view, load_view, pending_grasps, view_record
+    from .run import evaluate_view, grasp_view, load_view, pending_grasps, view_record
     from .viewsets import view_set_of
 
     root = Path(root)
@@ -855,7 +855,7 @@ def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMP
         if record is None:
             step(f"completing {name} view {view}")
             if completer is None:
-                from .model import load_completer
+                from ..model import load_completer
 
                 completer = load_completer(weights)
             view_set = view_set_of(name, view)
