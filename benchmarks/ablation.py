@@ -22,12 +22,12 @@ from collections import defaultdict
 
 import numpy as np
 
-from shapeviewer.sim import catalogue
 from shapeviewer.baselines import hull_mesh
+from shapeviewer.evaluation.viewsets import render_view, sample_views
 from shapeviewer.metrics import hausdorff, sampled_jaccard
 from shapeviewer.model import load_completer
 from shapeviewer.reconstruct import detailed_mesh, fast_mesh
-from shapeviewer.evaluation.viewsets import render_view, sample_views
+from shapeviewer.sim import catalogue
 from shapeviewer.voxel import context_grids, partial_to_grid
 
 
@@ -56,7 +56,7 @@ def main() -> None:
             continue
         kind = catalogue.shape_kind(name)
         grid, frame = partial_to_grid(v.points_cam)
-        ctx = context_grids(v.points_cam, frame, v.support_plane)
+        ctx = context_grids(v.points_cam, frame, support_plane=v.support_plane)
         base = {"object": name, "view": view, "view_set": view_set, "kind": kind, "sensor": v.sensor}
         j, d = score(hull_mesh(v.points_cam), v.truth_cam)
         rows.append({**base, "variant": "Hull", "j80": j, "distance_mm": d})

@@ -33,7 +33,8 @@ def main() -> None:
     args = ap.parse_args()
 
     from shapeviewer.capture import Capture
-    from shapeviewer.evaluation.results import ResultsStore, build_sample_store, sample_store_complete, sample_store_dir
+    from shapeviewer.evaluation.results import ResultsStore
+    from shapeviewer.evaluation.run import build_sample_store, sample_store_complete, sample_store_dir
     from shapeviewer.viewer import ViewerApp
 
     root = args.results or sample_store_dir()
@@ -52,7 +53,7 @@ def main() -> None:
         print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; {len(views)} views in {root}")
         # The tab draws its per-object chart in the background at start: let it finish first.
         deadline = time.monotonic() + 30
-        while d.bars_drawn != d._bars_key and time.monotonic() < deadline:
+        while d.bars_drawn != d.bars.key and time.monotonic() < deadline:
             time.sleep(0.1)
         cold, warm = [], []
         for name, view in views:

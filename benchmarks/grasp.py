@@ -97,11 +97,12 @@ def main() -> None:
     os.environ["SHAPEVIEWER_CACHE"] = tempfile.mkdtemp(prefix="grasp-bench-")
 
     from shapeviewer.grasp.execute import execute_grasps, lift_test
-    from shapeviewer.grasp.plan import _hand_samples, plan
+    from shapeviewer.grasp.plan import plan
+    from shapeviewer.grasp.samples import hand_samples
     from shapeviewer.grasp.world import convex_decomposition
 
     t = time.perf_counter()
-    _hand_samples(args.hand)
+    hand_samples(args.hand)
     print(f"hand samples ({args.hand}, once per process): {time.perf_counter() - t:.2f} s")
     header = (f"{'object':28s} {'faces':>6s} {'plan s':>7s} {'cpu s':>6s} {'search':>7s} {'sim':>6s} {'evals':>6s}"
               f" {'evals/s':>8s} {'simul.':>6s} {'grasps':>6s} {'FC':>3s} {'exec ms':>8s} {'joint deg':>9s}"

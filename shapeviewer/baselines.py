@@ -93,7 +93,7 @@ def _reflect_directions(vectors: np.ndarray, normal: np.ndarray) -> np.ndarray:
 # Partial baseline
 
 
-def partial_mesh(points_cam: np.ndarray, leaf_factor: float = PARTIAL_LEAF_FACTOR,
+def partial_mesh(points_cam: np.ndarray, *, leaf_factor: float = PARTIAL_LEAF_FACTOR,
                  iso_level: float = PARTIAL_ISO_LEVEL,
                  smoothing_iterations: int = SMOOTHING_ITERATIONS) -> trimesh.Trimesh:
     """The Partial baseline: marching cubes of the observed cloud alone, then smoothing (SPEC §6).
@@ -201,7 +201,7 @@ def _cotangent_smooth(mesh: trimesh.Trimesh, iterations: int, lamb: float = SMOO
 # Mirror baseline
 
 
-def mirror_mesh(points_cam: np.ndarray, support_plane_cam: np.ndarray | None,
+def mirror_mesh(points_cam: np.ndarray, support_plane_cam: np.ndarray | None, *,
                 camera_center: np.ndarray = (0.0, 0.0, 0.0), poisson_depth: int = POISSON_DEPTH) -> trimesh.Trimesh:
     """The Mirror baseline (Bohg et al., ICRA 2011): complete the object by its mirror image.
 

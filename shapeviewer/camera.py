@@ -7,10 +7,14 @@ Depth images are (H, W) float32 metres along the optical axis, 0 where there is 
 
 from __future__ import annotations
 
+import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+
+from .geometry import raycasting_scene
 
 
 @dataclass(frozen=True)
@@ -32,6 +36,16 @@ class Intrinsics:
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    @property
+    def vertical_fov(self) -> float:
+        """Full vertical field of view, radians (image height over the focal length in pixels)."""
+        return 2.0 * math.atan2(self.height / 2.0, self.fy)
+
+    @property
+    def aspect(self) -> float:
+        """Image width / height (pixels)."""
+        return self.width / self.height
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in ("width", "height", "fx", "fy", "cx", "cy")}
@@ -88,12 +102,8 @@ class RaycastRenderer:
         import open3d as o3d
 
         self._o3d = o3d
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.bounds = []
-        for m in meshes_world:
-            self.scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, dtype=np.float32)),
-                                     o3d.core.Tensor(np.asarray(m.faces, dtype=np.uint32)))
-            self.bounds.append(np.asarray(m.bounds))
+        self.scene = raycasting_scene(*meshes_world)
+        self.bounds = [np.asarray(m.bounds) for m in meshes_world]
 
     def render(self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True,
                with_normals: bool = False) -> tuple[np.ndarray, ...]:
@@ -161,8 +171,36 @@ def backproject_valid(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
     return np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
 
 
+class DepthNoise(ABC):
+    """A depth sensor model: :meth:`apply` turns an ideal depth image into a measured one."""
+
+    #: How far (pixels) from the measured pixels the noise reaches; None: anywhere in the image.
+    reach_px: int | None = None
+
+    def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
+        """A noisy copy of an ideal depth image (metres, 0 = missing), drawn from ``seed``."""
+        depth = np.asarray(depth, dtype=np.float32)
+        rows, cols = np.nonzero(np.any(depth > 0, axis=1))[0], np.nonzero(np.any(depth > 0, axis=0))[0]
+        out = np.zeros_like(depth)
+        if len(rows) == 0:
+            return out
+        rng = np.random.default_rng(seed)
+        if self.reach_px is None:
+            return self._noisy(depth, rng)
+        # Work on the measured region only (single-object renders cover a small part of the image).
+        pad = self.reach_px
+        v0, v1 = max(0, rows[0] - pad), min(depth.shape[0], rows[-1] + pad + 1)
+        u0, u1 = max(0, cols[0] - pad), min(depth.shape[1], cols[-1] + pad + 1)
+        out[v0:v1, u0:u1] = self._noisy(depth[v0:v1, u0:u1], rng)
+        return out
+
+    @abstractmethod
+    def _noisy(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The noisy image of a float32 depth image (or of its region within ``reach_px``)."""
+
+
 @dataclass(frozen=True)
-class KinectNoise:
+class KinectNoise(DepthNoise):
     """A Kinect v1 style depth sensor model (Khoshelham & Elberink 2012; Nguyen et al. 2012).
 
     * axial noise: Gaussian with sigma(z) = ``sigma_a + sigma_b * (z - 0.4)^2`` metres;
@@ -182,22 +220,13 @@ class KinectNoise:
     near: float = 0.4
     far: float = 4.0
 
-    def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
-        """A noisy copy of an ideal depth image (metres, 0 = missing)."""
-        rng = np.random.default_rng(seed)
-        depth = np.asarray(depth, dtype=np.float32)
-        rows, cols = np.nonzero(np.any(depth > 0, axis=1))[0], np.nonzero(np.any(depth > 0, axis=0))[0]
-        out = np.zeros_like(depth)
-        if len(rows) == 0:
-            return out
-        # Work on the measured region only (single-object renders cover a small part of the image).
-        pad = self.edge_px + 2
-        v0, v1 = max(0, rows[0] - pad), min(depth.shape[0], rows[-1] + pad + 1)
-        u0, u1 = max(0, cols[0] - pad), min(depth.shape[1], cols[-1] + pad + 1)
-        out[v0:v1, u0:u1] = self._apply(depth[v0:v1, u0:u1], rng)
-        return out
+    @property
+    def reach_px(self) -> int:
+        """The margin kept around the measured pixels: depth edges within ``edge_px`` of them and the
+        lateral jitter's neighbours."""
+        return self.edge_px + 2
 
-    def _apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def _noisy(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         valid = depth > 0
         out = depth.copy()
         if self.lateral_px > 0:
@@ -229,7 +258,7 @@ def depth_edges(depth: np.ndarray, jump: float, radius: int = 1) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class RealSenseNoise:
+class RealSenseNoise(DepthNoise):
     """An Intel RealSense D400 style active-stereo depth model (Ahn et al. 2019; Intel's tuning guide).
 
     * depth error growing with z^2: Gaussian sigma(z) = ``sigma_a + sigma_b * z^2`` metres
@@ -253,15 +282,10 @@ class RealSenseNoise:
     near: float = 0.2
     far: float = 4.0
 
-    def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
-        """A noisy copy of an ideal depth image (metres, 0 = missing)."""
+    def _noisy(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         from scipy import ndimage
 
-        rng = np.random.default_rng(seed)
-        depth = np.asarray(depth, dtype=np.float32)
         valid = depth > 0
-        if not valid.any():
-            return np.zeros_like(depth)
         smooth = ndimage.gaussian_filter(rng.normal(0.0, 1.0, depth.shape).astype(np.float32), self.blob_px)
         smooth /= max(float(smooth.std()), 1e-9)
         out = depth + smooth * (self.sigma_a + self.sigma_b * depth**2)
@@ -285,7 +309,7 @@ class RealSenseNoise:
         return np.where(ok, out, 0.0).astype(np.float32)
 
 
-def noise_model(name: str | None):
+def noise_model(name: str | None) -> DepthNoise | None:
     """The sensor model by name: ``kinect``, ``realsense`` or None / ``none`` (an ideal sensor)."""
     models = {"kinect": KinectNoise, "realsense": RealSenseNoise}
     if name is None or name == "none":

@@ -7,7 +7,8 @@
     shapeviewer generate --out DIR [--views N] [--backend process|ray]
     shapeviewer train --data DIR --run DIR [--steps N]
     shapeviewer evaluate-grids --data DIR [--weights PATH]
-    shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH] [--workers N]
+    shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
+                         [--workers N] [--backend process|ray]
                          [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
 """
 
@@ -24,6 +25,8 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+
+from .backends import BACKENDS
 
 
 def _add_input_args(p: argparse.ArgumentParser) -> None:
@@ -98,7 +101,7 @@ def cmd_complete(args) -> int:
     from .model import load_completer
     from .pipeline import SegmentTooSmallError, check_segment, complete_points
     from .reconstruct import detailed_mesh
-    from .segment import segment_scene
+    from .segment import segment_scene, world_frame
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -106,7 +109,7 @@ def cmd_complete(args) -> int:
     capture = load_input(args.input, args.seed, _intrinsics(args))
     t_load = time.perf_counter() - t0
     seg = segment_scene(capture)
-    T_world_cam = capture.T_world_cam if capture.objects else seg.T_world_cam
+    T_world_cam, _ = world_frame(capture, seg)
     if not seg.segments:
         raise CLIError(f"{capture.source}: no segments found (nothing stands on a support plane among its "
                        f"{int(capture.valid_mask().sum()):,} valid points); nothing to complete")
@@ -249,7 +252,8 @@ def cmd_evaluate(args) -> int:
         grasps = GraspOptions(methods=tuple(args.grasp_methods or GRASP_METHODS), hand=args.hand,
                               n_grasps=args.n_grasps, budget_seconds=args.grasp_budget)
     r = evaluate(args.out, n_per_set=args.views_per_set, seed=args.seed, weights=args.weights,
-                 workers=args.workers, progress=not args.no_progress, grasps=grasps, views=args.views)
+                 workers=args.workers, backend=args.backend, progress=not args.no_progress, grasps=grasps,
+                 views=args.views)
     print(r["tables_md"])
     print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
     return 0
@@ -308,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--objects", nargs="*", default=None, help="catalogue names (default: all)")
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument("--workers", type=int, default=None)
-    s.add_argument("--backend", default="process", choices=["process", "ray"])
+    s.add_argument("--backend", default="process", choices=BACKENDS)
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_generate)
 
@@ -345,7 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "among neighbours, a robot's Kinect or RealSense, segmented by the app")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
-    s.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="processes, or with --backend ray the CPUs of a local Ray instance (default: all cores)")
+    s.add_argument("--backend", default="process", choices=BACKENDS,
+                   help="process: local processes; ray: a Ray cluster (RAY_ADDRESS, else a local instance)")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
     s.add_argument("--grasps", action="store_true",
                    help="also Tables IV/V: plan grasps on each completion, execute them on the true mesh "
@@ -355,7 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--grasp-budget", type=float, default=None,
                    help="planning time limit per view and method, seconds (default: the full, deterministic search)")
     s.add_argument("--grasp-methods", nargs="+", default=None, metavar="METHOD",
-                   help="completions to grasp, of Partial Mirror Ours-fast Ours-detailed (default: all four)")
+                   help="completions to grasp, of Partial Mirror Hull Ours-fast Ours-detailed (default: all five)")
     s.set_defaults(func=cmd_evaluate)
     return p
 

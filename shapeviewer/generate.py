@@ -20,6 +20,7 @@ per-view metadata, and ``<out>/manifest.json``. Generation is resumable (finishe
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import os
@@ -31,6 +32,7 @@ import numpy as np
 
 from .sim import catalogue
 from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
+from .fileio import atomic_write
 from .voxel import GRID_DIM, context_grids, partial_to_grid, points_to_grid, solid_grid, surface_samples
 
 log = logging.getLogger(__name__)
@@ -126,17 +128,16 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
             rejected[r] += 1
         else:
             rows.append(r)
-    shard.parent.mkdir(parents=True, exist_ok=True)
-    tmp = shard.with_name(shard.stem + ".tmp.npz")
     packed = GRID_DIM**3 // 8
     stack = lambda k, shape, dtype: np.array([r[k] for r in rows], dtype).reshape(shape)  # noqa: E731
     n = len(rows)
-    np.savez(tmp, x=stack("x", (n, packed), np.uint8), y=stack("y", (n, packed), np.uint8),
+    buf = io.BytesIO()
+    np.savez(buf, x=stack("x", (n, packed), np.uint8), y=stack("y", (n, packed), np.uint8),
              free=stack("free", (n, packed), np.uint8), below=stack("below", (n, packed), np.uint8),
              views=stack("view", (n,), np.int32), center=stack("center", (n, 3), np.float64),
              voxel_size=stack("voxel_size", (n,), np.float64), T_cam_obj=stack("T", (n, 3, 4), np.float64),
              plane=stack("plane", (n, 4), np.float64))
-    os.replace(tmp, shard)
+    atomic_write(shard, buf.getvalue())
     return {"name": name, "kept": n, "rejected": rejected, "seconds": time.perf_counter() - t0, "skipped": False}
 
 
@@ -197,7 +198,8 @@ def _tabletop_examples(name: str, config: GenerationConfig):
         if (x & ndimage.binary_dilation(y)).sum() < MIN_X_INSIDE_Y * x.sum():
             yield "outside"
             continue
-        yield _example(view, x, y, context_grids(v.points_cam, frame, v.plane_cam), frame, v.T_cam_obj, v.plane_cam)
+        yield _example(view, x, y, context_grids(v.points_cam, frame, support_plane=v.plane_cam), frame,
+                       v.T_cam_obj, v.plane_cam)
 
 
 def _task(args):
@@ -228,10 +230,9 @@ def generate(out_dir: str | Path, config: GenerationConfig = GenerationConfig(),
     if backend == "ray":
         import ray
 
-        if os.environ.get("RAY_ADDRESS"):  # an existing cluster
-            ray.init(ignore_reinit_error=True, log_to_driver=False)
-        else:  # a local instance on this machine's cores
-            ray.init(ignore_reinit_error=True, log_to_driver=False, include_dashboard=False, num_cpus=workers)
+        from .backends import ray_init
+
+        ray_init(workers)
         remote = ray.remote(_task)
         pending = [remote.remote(t) for t in tasks]
         while pending:

@@ -21,6 +21,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
+from .geometry import raycasting_scene
 from .voxel import GridFrame, points_to_grid, surface_samples
 
 # Geodesic divergence constants from the authors' geodesic_comparison code.
@@ -172,7 +173,7 @@ def geodesic_divergence(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, seed: 
     return float(abs(js))
 
 
-def completion_metrics(completed: trimesh.Trimesh, truth: trimesh.Trimesh, seed: int = 0) -> dict[str, float]:
+def completion_metrics(completed: trimesh.Trimesh, truth: trimesh.Trimesh, *, seed: int = 0) -> dict[str, float]:
     """The paper's three completion metrics of ``completed`` against the ground-truth mesh ``truth``.
 
     Both meshes in the same frame (metres); both must be watertight (see :func:`jaccard`).
@@ -233,9 +234,7 @@ def _inside_lattice(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray, zs: n
     x, y = np.meshgrid(xs - origin[0] + step * np.sqrt(2.0), ys - origin[1] + step * np.sqrt(3.0), indexing="ij")
     z = zs - origin[2]
     z_start = float(z[0] - max(float(np.ptp(z)), 1e-3))
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((np.asarray(mesh.vertices) - origin).astype(np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    scene = raycasting_scene(mesh, origin=origin)
     rays = np.zeros((x.size, 6))
     rays[:, 0], rays[:, 1], rays[:, 2], rays[:, 5] = x.ravel(), y.ravel(), z_start, 1.0
     hits = scene.list_intersections(o3d.core.Tensor(rays.astype(np.float32)))
@@ -270,9 +269,7 @@ def _distance_to_surface(points: np.ndarray, mesh: trimesh.Trimesh, origin: np.n
     """Unsigned distance of points (already shifted by ``-origin``) to the surface of ``mesh``."""
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((np.asarray(mesh.vertices) - origin).astype(np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    scene = raycasting_scene(mesh, origin=origin)
     return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().astype(np.float64)
 
 

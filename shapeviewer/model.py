@@ -14,6 +14,7 @@ Weights files are ``torch.save`` dictionaries ``{"arch", "state_dict", "meta"}``
 
 from __future__ import annotations
 
+import io
 import logging
 import time
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .fileio import atomic_write
 from .voxel import GRID_DIM
 
 log = logging.getLogger(__name__)
@@ -271,12 +273,10 @@ def network_input(grids: np.ndarray, context: np.ndarray | None, in_channels: in
 
 def save_weights(path: str | Path, net: nn.Module, arch: str, meta: dict | None = None) -> None:
     """Write ``{"arch", "state_dict", "meta"}`` to ``path`` (atomically)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
     state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
-    torch.save({"arch": arch, "state_dict": state, "meta": meta or {}}, tmp)
-    tmp.replace(path)
+    buf = io.BytesIO()
+    torch.save({"arch": arch, "state_dict": state, "meta": meta or {}}, buf)
+    atomic_write(path, buf.getvalue())
 
 
 def _for_inference(net: nn.Module, device: torch.device) -> nn.Module:

@@ -98,7 +98,7 @@ def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
     t0 = time.perf_counter()
     pts = [check_segment(p) for p in segments_points_cam]
     grids, frames = zip(*(partial_to_grid(p) for p in pts)) if pts else ((), ())
-    contexts = [context_grids(p, f, support_plane) for p, f in zip(pts, frames)]
+    contexts = [context_grids(p, f, support_plane=support_plane) for p, f in zip(pts, frames)]
     t1 = time.perf_counter()
     probs = (completer.predict(np.stack(grids), context=np.stack(contexts)) if grids
              else np.zeros((0, 40, 40, 40), np.float32))

@@ -260,8 +260,8 @@ def _drop_specks(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return trimesh.util.concatenate([p for p, v in zip(parts, volumes) if v >= MIN_PART_SHARE * volumes.max()])
 
 
-def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_cam: np.ndarray,
-                  timings: dict | None = None, smooth_iterations: int = SMOOTH_ITERATIONS, *,
+def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_cam: np.ndarray, *,
+                  timings: dict | None = None, smooth_iterations: int = SMOOTH_ITERATIONS,
                   support_plane: np.ndarray | None = None) -> trimesh.Trimesh:
     """Algorithm 1: merge the dense observed points with the up-sampled CNN output, smooth, mesh.
 

@@ -189,6 +189,18 @@ def segment_scene(capture_or_points: Capture | np.ndarray, *, voxel_size: float 
     return Segmentation(segments, plane, T_world_cam, timings, table)
 
 
+def world_frame(capture: Capture, segmentation: Segmentation) -> tuple[np.ndarray, str]:
+    """``(T_world_cam, what it is)``: the 4x4 camera pose (metres) to show and export a capture in.
+
+    A synthetic capture (one with ground-truth objects) knows its true table frame, which its
+    objects' poses use too; a real one has only the table-aligned frame that segmentation
+    estimated (identity when no plane was found).
+    """
+    if capture.objects:
+        return np.asarray(capture.T_world_cam, dtype=np.float64), "simulated table frame"
+    return np.asarray(segmentation.T_world_cam, dtype=np.float64), "table plane from segmentation"
+
+
 def table_frame(plane_cam: np.ndarray) -> np.ndarray:
     """``T_world_cam`` of the table-aligned world frame of a plane (see :class:`Segmentation`).
 

@@ -13,6 +13,7 @@ Outputs in the run directory: ``last.pt`` (resumable: model, optimiser, step, RN
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import time
@@ -24,6 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from .sim import catalogue
+from .fileio import atomic_write
 from .model import build, default_device, network_input, save_weights
 from .voxel import GRID_DIM
 
@@ -309,10 +311,10 @@ def _truncate_log(log_csv: Path, step: int) -> None:
 
 
 def _save_checkpoint(path: Path, net, opt, rng, step, best_loss, best_jac, wall) -> None:
-    tmp = path.with_suffix(".pt.tmp")
+    buf = io.BytesIO()
     torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "rng": rng.bit_generator.state,
-                "step": step, "best_loss": best_loss, "best_jaccard": best_jac, "wall": wall}, tmp)
-    tmp.replace(path)
+                "step": step, "best_loss": best_loss, "best_jaccard": best_jac, "wall": wall}, buf)
+    atomic_write(path, buf.getvalue())
 
 
 def plot_log(log_csv: str | Path, png: str | Path) -> None:

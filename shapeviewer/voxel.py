@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from .geometry import raycasting_scene
+
 GRID_DIM = 40
 GRID_SPAN = 32
 CENTER_INDEX = np.array([20.0, 20.0, 18.0])
@@ -145,8 +147,8 @@ def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray |
         T_cam_mesh: 4x4 pose of the mesh in the camera frame (identity when omitted).
         surface_points: dense samples of the surface in the mesh frame, spacing well under half a
             voxel (see :func:`surface_samples`). Sampled here when omitted.
-        scene: an optional prebuilt ``open3d.t.geometry.RaycastingScene`` holding ``mesh``
-            (mesh frame), reused across views of one object.
+        scene: an optional prebuilt ray-casting scene holding ``mesh`` (mesh frame; see
+            :func:`~shapeviewer.geometry.raycasting_scene`), reused across views of one object.
     """
     import open3d as o3d
 
@@ -161,9 +163,7 @@ def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray |
         ii, jj, kk = np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi)), indexing="ij")
         idx = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
         if scene is None:
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
-                                o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+            scene = raycasting_scene(mesh)
         centers_mesh = (frame.voxel_centers(idx) - T[:3, 3]) @ T[:3, :3]
         inside = scene.compute_occupancy(o3d.core.Tensor(centers_mesh.astype(np.float32))).numpy().astype(bool)
         idx = idx[inside]
@@ -266,7 +266,7 @@ def unit_plane(plane: np.ndarray, camera_center: np.ndarray = np.zeros(3)) -> tu
     return normal, float(d)
 
 
-def context_grids(points_cam: np.ndarray, frame: GridFrame, support_plane: np.ndarray | None = None) -> np.ndarray:
+def context_grids(points_cam: np.ndarray, frame: GridFrame, *, support_plane: np.ndarray | None = None) -> np.ndarray:
     """The network's context channels: (2, dim, dim, dim) bool, [x, y, z], in ``frame``.
 
     Channel 0 (``seen_free``): voxels whose centre the camera saw through, more than one voxel in

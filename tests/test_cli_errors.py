@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import textwrap
@@ -22,6 +21,8 @@ import trimesh
 
 from shapeviewer.grasp import world as W
 from shapeviewer.interrupt import descendants
+
+from helpers import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 MUG = ROOT / "static_assets" / "captures" / "table_scene_mug_stereo_textured.pcd"
@@ -179,12 +180,6 @@ def test_vhacd_cache_is_bounded_least_recently_used_first(tmp_path, monkeypatch)
     assert path.name in left and not stale.exists()
     assert sum(p.stat().st_size for p in folder.glob("old*")) <= 52_429
     assert "old0_r100000.obj" in left and "old1_r100000.obj" not in left and "old9_r100000.obj" in left
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _alive(pids: list[int]) -> list[int]:

@@ -48,7 +48,7 @@ def test_bad_input_says_what_is_wrong(can_view):
 def test_the_network_never_fills_space_known_to_be_empty(can_view):
     v = can_view
     grid, frame = partial_to_grid(v.points_cam)
-    ctx = context_grids(v.points_cam, frame, v.plane_cam)
+    ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     p = load_completer().predict(grid, context=ctx)
     assert ctx.any() and not (p[ctx.any(axis=0)] > 0).any()
 

@@ -11,8 +11,8 @@ import trimesh
 
 from shapeviewer.evaluation.results import ResultsStore, view_stem
 
+from helpers import browser_page, free_port, needs_browser, wait_until
 from store_factory import VIEWS, make_store
-from test_browser import browser_page, free_port, needs_browser, wait_until
 
 pytestmark = pytest.mark.browser
 

@@ -4,7 +4,6 @@ common display pose, stepping, grasps, exports, open in pipeline, a store growin
 from __future__ import annotations
 
 import io
-import socket
 import time
 
 import numpy as np
@@ -18,15 +17,10 @@ from shapeviewer.evaluation.results import ResultsStore, view_stem
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view
 
+from helpers import free_port, node
 from store_factory import VIEWS, jaccard_of, make_store, write_view
 
 PIPELINE = ("/cloud", "/segments", "/fast_mesh")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -43,10 +37,6 @@ def app(store_root):
     app = ViewerApp(port=free_port(), cloud=capture, results=store_root)
     yield app
     app.stop()
-
-
-def node(app, name):
-    return app.server.scene.get_handle_by_name(name)
 
 
 def test_index_lists_the_store_objects(app):
@@ -68,9 +58,9 @@ def test_index_lists_the_store_objects(app):
     assert "Table I" in d.c.summary.content and "Table IV" in d.c.summary.content
     # The per-object bars are drawn in the background for the latest index.
     deadline = time.monotonic() + 20
-    while d.bars_drawn != d._bars_key and time.monotonic() < deadline:
+    while d.bars_drawn != d.bars.key and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert d.bars_drawn == d._bars_key and d._bars_image is not None and d._bars_image.image.shape[1] > 300
+    assert d.bars_drawn == d.bars.key and d.c.bars_image is not None and d.c.bars_image.image.shape[1] > 300
 
 
 def test_select_draws_the_view_side_by_side(app):

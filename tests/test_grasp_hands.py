@@ -8,6 +8,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from shapeviewer.geometry import pq_to_pose
 from shapeviewer.grasp import hands as H
 from shapeviewer.grasp import world as W
 from shapeviewer.grasp.quality import grasp_quality, max_radius
@@ -49,7 +50,7 @@ def test_hand_loads_and_kinematics_match_pybullet(client, name):
     for link, i in hb.link_index.items():
         if i >= 0:
             state = p.getLinkState(hb.body, i, computeForwardKinematics=True, physicsClientId=client)
-            np.testing.assert_allclose(H.pq_to_pose(state[4], state[5]), T @ poses[link], atol=1e-6)
+            np.testing.assert_allclose(pq_to_pose(state[4], state[5]), T @ poses[link], atol=1e-6)
 
 
 def test_barrett_limits_clip(client):
@@ -72,6 +73,14 @@ def test_barrett_coupling(client):
     for f, q in (("f1", q1), ("f2", q2), ("f3", q3)):
         assert got[f"{f}_proximal"] == pytest.approx(q)
         assert got[f"{f}_distal"] == pytest.approx(q / 3 + 42 * DEG)
+
+
+def test_closing_moves_the_fingers_not_the_spread():
+    barrett, panda = H.get_hand("barrett"), H.get_hand("panda")
+    assert barrett.closing_dofs.tolist() == [False, True, True, True]
+    closing = dict(zip(barrett.joint_names, barrett.closing_joints))
+    assert [n for n, c in closing.items() if not c] == ["f1_spread", "f2_spread"]
+    assert panda.closing_dofs.all() and panda.closing_joints.all()
 
 
 def test_barrett_spread_turns_fingers_1_and_2_opposite_ways():

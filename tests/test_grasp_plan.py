@@ -8,6 +8,9 @@ import trimesh
 
 from shapeviewer.grasp import plan as P
 from shapeviewer.grasp.hands import get_hand
+from shapeviewer.grasp.object_field import APPROACH_MARGIN, ObjectField
+from shapeviewer.grasp.samples import hand_samples
+from shapeviewer.grasp.search import DISTINCT_ANGLE, DISTINCT_POSITION, distinct, search
 from shapeviewer.grasp.world import GraspWorld
 
 SMALL = P.PlanSettings(samples=256, chains=16, steps=10, simulate=12)
@@ -59,11 +62,11 @@ def check_grasps(grasps: list[P.Grasp], mesh: trimesh.Trimesh) -> None:
         for b in grasps[i + 1:]:
             dp = np.linalg.norm(a.position - b.position)
             cos = (np.trace(a.T_world_palm[:3, :3].T @ b.T_world_palm[:3, :3]) - 1) / 2
-            assert dp > P.DISTINCT_POSITION or cos < math.cos(P.DISTINCT_ANGLE)
+            assert dp > DISTINCT_POSITION or cos < math.cos(DISTINCT_ANGLE)
 
 
 def test_object_field_matches_the_box(box):
-    field = P.ObjectField(box)
+    field = ObjectField(box)
     rng = np.random.default_rng(0)
     pts = rng.uniform(box.bounds[0] - 0.02, box.bounds[1] + 0.02, size=(2000, 3))
     exact = -trimesh.proximity.signed_distance(box, pts)  # trimesh: positive inside
@@ -77,19 +80,19 @@ def test_object_field_matches_the_box(box):
     np.testing.assert_allclose(normal[0], [1, 0, 0], atol=0.05)
     # Rays stop at the surface inflated by the approach margin.
     t = field.offset_ray_hits(np.array([[0.2, 0.0, 0.06]]), np.array([-1.0, 0.0, 0.0]))
-    assert t[0] == pytest.approx(0.2 - 0.03 - P.APPROACH_MARGIN, abs=0.0015)
+    assert t[0] == pytest.approx(0.2 - 0.03 - APPROACH_MARGIN, abs=0.0015)
 
 
 def test_cheap_stage_agrees_with_pybullet(box):
     """The palm positions the cheap stage predicts are where pybullet's approach stops."""
-    hs = P._hand_samples("barrett")
-    obj = P.ObjectField(box)
-    found, evaluations, _ = P._search(obj, hs, np.random.default_rng(0), True, SMALL, lambda f: None,
-                                      lambda: False, lambda: False)
+    hs = hand_samples("barrett")
+    obj = ObjectField(box)
+    found, evaluations, _ = search(obj, hs, np.random.default_rng(0), True, SMALL, lambda f: None,
+                                   lambda: False, lambda: False)
     # Every random sample points down or sideways; annealing proposals pointing up are not evaluated.
     assert SMALL.samples < evaluations <= SMALL.samples + SMALL.chains * SMALL.steps
     order = np.argsort(found.energy)
-    picks = P._distinct(found.palm, found.R, order[np.isfinite(found.energy[order])], 20)
+    picks = distinct(found.palm, found.R, order[np.isfinite(found.energy[order])], 20)
     errors = []
     with GraspWorld("barrett") as world:
         world.add_object(box, decompose=True)

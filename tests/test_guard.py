@@ -20,13 +20,9 @@ from websockets.exceptions import InvalidStatus
 from shapeviewer.capture import Capture
 from shapeviewer.viewer.guard import Guard, cookie_name, server_url, start_server
 
+from helpers import free_port
+
 SUBPROTOCOL = f"viser-v{viser.__version__}"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def http_get(port: int, path: str = "/", host: str | None = None, **headers: str) -> tuple[int, dict, bytes]:

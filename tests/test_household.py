@@ -5,6 +5,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from shapeviewer.geometry import raycasting_scene
 from shapeviewer.sim import catalogue
 from shapeviewer.sim import household
 
@@ -21,8 +22,7 @@ def first_hit_z(mesh, x: float, y: float) -> float:
     """Height of the first surface a ray straight down through (x, y) meets."""
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh)
     top = mesh.bounds[1, 2] + 1.0
     t = scene.cast_rays(o3d.core.Tensor(np.array([[x, y, top, 0, 0, -1]], np.float32)))["t_hit"].numpy()[0]
     return float(top - t)

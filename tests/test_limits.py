@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import logging
-import socket
 import subprocess
 import sys
 import textwrap
@@ -22,15 +21,11 @@ from shapeviewer.camera import Intrinsics, backproject
 from shapeviewer.capture import MAX_CAPTURE_POINTS, CaptureError, decimate, fit_intrinsics, load_capture
 from shapeviewer.segment import segment_scene
 
+from helpers import free_port
+
 CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
 MILK = CAPTURES / "milk_cartoon_all_small_clorox.pcd"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def write_pcd(path: Path, points: np.ndarray) -> Path:
@@ -154,7 +149,7 @@ def test_the_browser_gets_a_decimated_cloud(app, tmp_path: Path) -> None:
     np.save(tmp_path / "dense.npy", dense_copy(3))  # 724k points, all kept for computation
     assert app.load_cloud(tmp_path / "dense.npy")
     assert app.scene.capture.original_points is None and len(app.scene.capture.points_cam) > 700_000
-    sent = {name: len(h.points) for name, h in app._nodes.items() if name.startswith(("/cloud/", "/segments/seg_"))}
+    sent = {name: len(h.points) for name, h in app.drawing.nodes.items() if name.startswith(("/cloud/", "/segments/seg_"))}
     assert sum(sent.values()) <= 300_000
     assert "showing" in app.panel.source.content
     # Picking and completion keep every point of the segments.
@@ -174,7 +169,7 @@ HUGE_LOAD = textwrap.dedent("""
     t0 = time.perf_counter()
     ok = app.load_cloud(sys.argv[2])
     seconds = time.perf_counter() - t0
-    sent = sum(len(h.points) for name, h in app._nodes.items() if name.startswith(("/cloud/", "/segments/seg_")))
+    sent = sum(len(h.points) for name, h in app.drawing.nodes.items() if name.startswith(("/cloud/", "/segments/seg_")))
     print(json.dumps({"ok": ok, "seconds": seconds, "sent": sent, "segments": len(app.scene.segments),
                       "kept": len(app.scene.capture.flat_points()), "error": app.last_error,
                       "max_rss_gb": peak_rss_gb()}))

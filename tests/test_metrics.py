@@ -115,7 +115,10 @@ def test_open_meshes(sphere):
     # Surface voxels only: a thin shell against the full ball.
     assert 0.05 < jaccard(open_sphere, sphere, allow_open=True) < 0.5
     assert hausdorff(open_sphere, sphere)["mean_mm"] < 0.5
-    assert geodesic_divergence(open_sphere, sphere) <= 1.0
+    # Still a sphere's distribution of geodesics, unlike a long thin box's: 0.07-0.15 against the
+    # full sphere and 0.60-0.86 against the box for seeds 0-4.
+    long_thin_box = _box((0.02, 0.02, 0.3)).subdivide_to_size(0.005)
+    assert geodesic_divergence(open_sphere, sphere) < 0.25 < geodesic_divergence(open_sphere, long_thin_box)
 
 
 def test_completion_metrics_reports_all_three(sphere):

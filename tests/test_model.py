@@ -71,7 +71,7 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
 
     v = render_tabletop_view("ycb/025_mug", 5, seed=3)
     grid, frame = partial_to_grid(v.points_cam)
-    ctx = context_grids(v.points_cam, frame, v.plane_cam)
+    ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     c = load_completer()
     samples = c.predict_samples(grid, 8, context=ctx)
     assert samples.shape == (8, 40, 40, 40) and samples.dtype == np.float32

@@ -14,9 +14,14 @@ def code_blocks(text: str) -> list[str]:
     return re.findall(r"```(?:bash|python)\n(.*?)```", text, flags=re.S)
 
 
+def python_api_section() -> str:
+    start = README.index("## Python API")
+    return README[start:README.index("\n## ", start + 1)]
+
+
 def test_readme_names_only_files_in_the_repository():
     assert "shared/data" not in README, "README examples must use the shipped captures, not ../shared"
-    named = set(re.findall(r"(?:static_assets|tools|benchmarks|\.ci)/[\w./-]+\w", README))
+    named = set(re.findall(r"(?:static_assets|tools|benchmarks|examples|\.ci)/[\w./-]+\w", README))
     assert "static_assets/captures/milk_cartoon_all_small_clorox.pcd" in named
     missing = sorted(p for p in named if not (ROOT / p).exists())
     assert not missing, f"the README names files the repository lacks: {missing}"
@@ -48,3 +53,22 @@ def test_python_api_examples_run_as_written(monkeypatch):
     exec(compile("\n".join(blocks), "README.md", "exec"), scope)  # noqa: S102 - our own README
     assert scope["mesh"].is_watertight and scope["detailed"].is_watertight
     assert scope["samples"].shape == (8, 40, 40, 40)
+
+
+def test_python_api_section_lists_exactly_the_public_api():
+    """One row per name of ``shapeviewer.__all__`` in the section's table, and the section's text and
+    examples use no other ``shapeviewer`` name."""
+    import shapeviewer
+
+    section = python_api_section()
+    listed = re.findall(r"^\| `(\w+)` \|", section, flags=re.M)
+    assert len(listed) == len(set(listed)), f"listed twice: {sorted(n for n in listed if listed.count(n) > 1)}"
+    public = set(shapeviewer.__all__)
+    assert set(listed) == public, (f"missing from the README: {sorted(public - set(listed))}; "
+                                   f"not public: {sorted(set(listed) - public)}")
+    used = set(re.findall(r"\b(?:shapeviewer|sv)\.(\w+)", section))
+    for names in re.findall(r"from shapeviewer import ([\w, ]+)", section):
+        used |= {n.strip() for n in names.split(",")}
+    assert used - {"__all__"} <= public, f"the section uses non-public names: {sorted(used - public - {'__all__'})}"
+    for name in ("complete_capture.py", "plan_grasps.py", "evaluate_two_views.py"):
+        assert f"examples/{name}" in section and (ROOT / "examples" / name).is_file(), name

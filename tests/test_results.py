@@ -16,9 +16,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.evaluation import run as ev
 from shapeviewer.camera import transform_points
-from shapeviewer.evaluation.results import ResultsStore, parse_view_file, view_stem
+from shapeviewer.evaluation.records import METHODS, METRICS, ViewFileError, parse_view_file, view_stem
+from shapeviewer.evaluation.results import ResultsStore
+from shapeviewer.evaluation.run import T_WORLD_CAM
+from shapeviewer.evaluation.tables import summarize
+from shapeviewer.evaluation.viewsets import VIEW_SETS
 
 from store_factory import VIEWS, jaccard_of, make_store, truth_cam, write_view
 
@@ -32,23 +35,23 @@ def folder(tmp_path):
 def test_round_trip_of_both_formats(folder):
     root, records = folder
     store = ResultsStore(root)
-    assert store.counts() == {"objects": 3, "views": 4, "completions": 4 * len(ev.METHODS), "grasps": 2, "skipped": 0}
+    assert store.counts() == {"objects": 3, "views": 4, "completions": 4 * len(METHODS), "grasps": 2, "skipped": 0}
     with sqlite3.connect(root / "index.sqlite") as db:
         assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     # Every completion row comes back as written (the old-format view included), NaN where failed.
     got = {(r["object"], r["view"], r["method"]): r for r in store.rows()}
-    assert len(got) == 4 * len(ev.METHODS)
+    assert len(got) == 4 * len(METHODS)
     for rec in records.values():
         for row in rec["rows"]:
             back = got[(row["object"], row["view"], row["method"])]
-            for k in (*ev.METRICS, "seconds"):
+            for k in (*METRICS, "seconds"):
                 assert (math.isnan(back[k]) and math.isnan(row[k])) or back[k] == pytest.approx(row[k]), k
             assert back["error"] == row["error"] and back["view_set"] == row["view_set"]
     # The tables are the evaluation's own summary of those rows.
-    expect = ev.summarize([r for rec in records.values() for r in rec["rows"]])
+    expect = summarize([r for rec in records.values() for r in rec["rows"]])
     got_summary = store.summary()
-    for s in ev.VIEW_SETS:
-        for m in ev.METHODS:
+    for s in VIEW_SETS:
+        for m in METHODS:
             for k, v in expect[s][m].items():
                 assert got_summary[s][m][k] == pytest.approx(v, nan_ok=True), (s, m, k)
     # Mesh files of the old format are found at their fixed paths; a failed method has none.
@@ -98,14 +101,14 @@ def test_grasps_round_trip(folder):
     assert g["Partial"].n == 2 and g["Partial"].joint_error_deg == 2.9 and g["Partial"].lift_success == 0.5
     gs = store.grasp_set(name, view, "Ours-fast")
     assert len(gs.grasps) == 2 and gs.executions[0].lift.success
-    assert np.allclose(gs.meta["T_world_cam"], ev.T_WORLD_CAM)
+    assert np.allclose(gs.meta["T_world_cam"], T_WORLD_CAM)
     assert store.grasp_set(name, view, "Mirror") is None
     summary = store.grasp_summary()
     assert summary[records[(name, view)]["view_set"]]["Partial"]["pose_error_mm"] == 5.0
     assert "Table IV" in store.tables_markdown()
     rows = list(csv.DictReader(io.StringIO(store.view_csv(name, view))))
-    assert [r["method"] for r in rows] == list(ev.METHODS)
-    fast = rows[list(ev.METHODS).index("Ours-fast")]
+    assert [r["method"] for r in rows] == list(METHODS)
+    fast = rows[list(METHODS).index("Ours-fast")]
     assert fast["grasp_hand"] == "barrett" and float(fast["grasp_pose_error_mm"]) == 5.0
     assert rows[1]["grasp_hand"] == ""  # Mirror: no grasps
 
@@ -149,8 +152,8 @@ def test_half_written_file_is_skipped_then_read(folder, caplog):
     os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 1_000_000))
     report = store.sync()
     assert report.added == 1 and store.counts() == {**store.counts(), "views": 5, "skipped": 0}
-    assert [c.method for c in store.completions(name, view)] == list(ev.METHODS)
-    assert len(rec["rows"]) == len(ev.METHODS)
+    assert [c.method for c in store.completions(name, view)] == list(METHODS)
+    assert len(rec["rows"]) == len(METHODS)
     # Not a view at all, and rows of two views in one file: skipped with the reason.
     (root / "views" / "junk.json").write_text(json.dumps({"hello": 1}))
     bad = [dict(r) for r in rec["rows"]]
@@ -188,12 +191,10 @@ def test_sync_is_incremental_and_forgets_deleted_views(folder):
 
 
 def test_parse_rejects_a_view_file_without_rows(tmp_path):
-    from shapeviewer.evaluation.results import ViewFileError
-
     for text, why in (("[]", "no rows"), ('{"object": "a", "view": 1}', "no 'rows'"), ("3", "not a view"),
                       ('[{"view": 1, "method": "Partial"}]', "no object name")):
         with pytest.raises(ViewFileError, match=why):
-            parse_view_file(text, "views/x.json", tmp_path)
+            parse_view_file(text, tmp_path)
 
 
 def test_reading_while_another_store_adds_views(tmp_path):
@@ -227,3 +228,22 @@ def test_reading_while_another_store_adds_views(tmp_path):
         t.join()
     assert not errors, errors
     assert seen == sorted(seen) and reader.counts()["views"] == 6
+
+
+def test_files_are_written_atomically(tmp_path, monkeypatch):
+    """One helper writes every results file: the whole file or, when writing fails, the old one;
+    never a temp file left behind that a ``views/*.json`` glob could pick up."""
+    from shapeviewer import fileio
+
+    path = fileio.atomic_write(tmp_path / "views" / "a.json", "{}")
+    assert path.read_text() == "{}" and [p.name for p in path.parent.iterdir()] == ["a.json"]
+    fileio.atomic_write(path, b"[1]")
+    assert path.read_bytes() == b"[1]"
+
+    def fail(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(fileio.os, "replace", fail)
+    with pytest.raises(OSError, match="disk full"):
+        fileio.atomic_write(path, "[2]")
+    assert path.read_bytes() == b"[1]" and [p.name for p in path.parent.iterdir()] == ["a.json"]

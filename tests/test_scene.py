@@ -9,6 +9,7 @@ import trimesh
 
 from shapeviewer.camera import Intrinsics, transform_points
 from shapeviewer.capture import Capture, SceneObject
+from shapeviewer.geometry import raycasting_scene
 from shapeviewer.sim.demo_scene import build_tabletop, capture_scene, default_scene
 
 
@@ -18,10 +19,7 @@ def world_mesh(obj: SceneObject) -> trimesh.Trimesh:
 
 def distance_to_surface(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     """Unsigned distance (m) of each point to the mesh surface."""
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+    return raycasting_scene(mesh).compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
 
 
 def object_points_world(cap: Capture, i: int) -> np.ndarray:

@@ -45,7 +45,7 @@ def test_context_never_marks_the_true_object_empty(mug_view):
     v = mug_view
     x, frame = partial_to_grid(v.points_cam)
     y = solid_grid(v.mesh, frame, v.T_cam_obj)
-    ctx = context_grids(v.points_cam, frame, v.plane_cam)
+    ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     assert ctx[0].sum() > 1000 and ctx[1].sum() > 1000  # the camera saw through a lot, the table hides a lot
     assert (ctx[0] & y).sum() <= 0.01 * y.sum() and (ctx[1] & y).sum() == 0
     assert not (ctx[0] & x).any()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import socket
 
 import numpy as np
 import pytest
@@ -14,11 +13,7 @@ from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.rays import first_hit, project_to_pixels, ray_through
 from shapeviewer.viewer.visuals import surface_voxels
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from helpers import free_port, node
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +21,6 @@ def app():
     app = ViewerApp(port=free_port(), seed=0)
     yield app
     app.stop()
-
-
-def node(app: ViewerApp, name: str):
-    return app.server.scene.get_handle_by_name(name)
 
 
 def completed_segment(app: ViewerApp) -> int:
@@ -93,20 +84,32 @@ def test_complete_segment_adds_grids_and_mesh(app):
 
 
 def test_complete_all_is_one_batch(app):
-    done = app.complete_all()
+    import threading
+
+    # A spy on the network's forward pass (the real one still runs). Only this thread's calls count:
+    # the Dataset tab may be building its sample store with the same network in the background.
+    me = threading.get_ident()
+    batches: list[int] = []
+    hook = app.completer.net.register_forward_hook(
+        lambda _net, args, _out: batches.append(len(args[0])) if threading.get_ident() == me else None)
+    try:
+        done = app.complete_all()
+    finally:
+        hook.remove()
     assert {c.segment_id for c in done} <= set(app.scene.segments)
-    assert len(done) >= 1
+    assert len(done) >= 2, "the default scene has several objects to complete"
+    assert batches == [len(done)], f"expected one CNN pass over {len(done)} segments, got batches {batches}"
     for c in done:
         assert node(app, f"/cnn_input/seg_{c.segment_id}") is not None
     assert "All" in app.panel.timings.content
 
 
 def test_busy_guard_rejects_a_second_job(app):
-    assert app._job.acquire(blocking=False)
+    assert app.jobs.lock.acquire(blocking=False)
     try:
         assert app.complete(next(iter(app.scene.segments))) is None
     finally:
-        app._job.release()
+        app.jobs.lock.release()
     assert not app.panel.complete.disabled
 
 

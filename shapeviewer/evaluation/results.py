@@ -1,24 +1,8 @@
-"""The results store: a folder written by ``shapeviewer evaluate``, indexed in SQLite for browsing.
+"""The results store: the index and read API of a folder written by ``shapeviewer evaluate``.
 
-Folder layout (relative paths; everything but the index is written by the evaluation)::
-
-    <root>/views/<stem>.json          one file per finished view (see below)
-    <root>/meshes/<stem>__truth.ply   ground-truth mesh, camera optical frame, metres
-    <root>/meshes/<stem>__points.ply  the partial view (points), camera optical frame, metres
-    <root>/meshes/<stem>__<method>.ply  each method's completion, camera optical frame, metres
-    <root>/grasps/<stem>__<method>.json grasps planned on a completion (``grasp.export`` JSON)
-    <root>/index.sqlite               this module's index (WAL mode), rebuilt from the files at will
-
-with ``stem = name.replace('/', '__') + f'__{view:03d}'``. A view file is either the current
-format, a dict::
-
-    {"object", "view", "view_set", "seed", "files": {"truth": .., "points": .., "<method>": ..},
-     "rows": [completion rows], "grasps": [{"method", "hand", "file", "n", "joint_error_deg",
-     "pose_error_mm", "epsilon_planned", "epsilon_executed", "force_closure_planned",
-     "lift_success", "seconds_plan", "error"}]}
-
-or the first format, a bare list of completion rows (meshes then sit at the paths above). A
-completion row has the keys of :data:`evaluate.ROW_FIELDS` (metrics NaN when the method failed).
+The folder's files and their formats are :mod:`.records`' (view records in ``views/``, meshes in
+the camera optical frame in metres, grasp files); this module adds ``<root>/index.sqlite`` (WAL
+mode), an SQLite index of the view files for browsing, and reads meshes and points back.
 
 :meth:`ResultsStore.sync` ingests new and changed view files by (mtime, size), so a store can be
 read while an evaluation is still adding views, and extended by later runs. A file that cannot be
@@ -30,39 +14,41 @@ The read API returns plain dataclasses and dicts; this module never imports vise
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
-import json
 import logging
 import math
 import os
 import sqlite3
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..sim import catalogue
-from .run import METHODS, METRICS, PAPER_COLUMN, PAPER_GRASP, ROW_FIELDS, SET_TITLES, VIEW_SETS, summarize, \
-    tables_markdown
+from . import tables
+from .records import (
+    GRASP_FIELDS,
+    METHODS,
+    METRICS,
+    ROW_FIELDS,
+    ViewFileError,
+    load_grasp_rows,
+    parse_view_file,
+    view_stem,
+)
 
 log = logging.getLogger(__name__)
 
 INDEX_NAME = "index.sqlite"
 SCHEMA_VERSION = 2
-# What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
-KINDS = ("truth", "points", *METHODS)
 # The metrics the browser filters and sorts by, and which way is better.
 HIGHER_IS_BETTER = {"jaccard": True, "j80": True, "hausdorff_mean_mm": False, "hausdorff_max_mm": False,
                     "hausdorff_rms_mm": False, "geodesic": False}
 METRIC_TITLES = {"jaccard": "Jaccard", "j80": "J80 (sampled solids)", "hausdorff_mean_mm": "Hausdorff mean (mm)",
                  "hausdorff_max_mm": "Hausdorff max (mm)", "hausdorff_rms_mm": "Hausdorff RMS (mm)",
                  "geodesic": "Geodesic divergence"}
-GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
-                "force_closure_planned", "lift_success", "seconds_plan")
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 CREATE TABLE IF NOT EXISTS files (path TEXT PRIMARY KEY, mtime_ns INTEGER, size INTEGER, status TEXT,
@@ -81,11 +67,7 @@ CREATE TABLE IF NOT EXISTS grasps (object TEXT, view INTEGER, method TEXT, hand 
                                    seconds_plan REAL, error TEXT, PRIMARY KEY (object, view, method, hand));
 CREATE INDEX IF NOT EXISTS completions_by_method ON completions (method, object);
 """
-
-
-def view_stem(name: str, view: int) -> str:
-    """The file-name stem of one view: ``ycb/025_mug``, 7 -> ``ycb__025_mug__007``."""
-    return f"{name.replace('/', '__')}__{int(view):03d}"
+_VIEW_COLUMNS = "object, view, view_set, seed, file, truth, points"  # ViewInfo's fields
 
 
 # ----------------------------------------------------------------------------------------------
@@ -209,19 +191,13 @@ class SyncReport:
 
 
 # ----------------------------------------------------------------------------------------------
-# Parsing view files
+# Values in and out of SQLite
 
 
-class ViewFileError(ValueError):
-    """A view file that cannot be read (half written, corrupt, or not a view file)."""
-
-
-def _num(v) -> float:
-    """A metric value as float; None, "", or anything unreadable is NaN."""
-    if v is None or v == "":
-        return math.nan
+def _as_float(v) -> float:
+    """A value read from a view file as float; None, "", or anything unreadable is NaN."""
     try:
-        return float(v)
+        return math.nan if v is None or v == "" else float(v)
     except (TypeError, ValueError):
         return math.nan
 
@@ -233,49 +209,6 @@ def _db(v: float) -> float | None:
 
 def _undb(v) -> float:
     return math.nan if v is None else float(v)
-
-
-def parse_view_file(text: str, rel_path: str, root: Path) -> dict:
-    """A view file's content as ``{"object", "view", "view_set", "seed", "files", "rows", "grasps"}``.
-
-    ``files`` maps kind (truth, points, method) to a path relative to ``root`` and only holds files
-    that exist. Raises :class:`ViewFileError` saying what is wrong.
-    """
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ViewFileError(f"not JSON ({e.msg} at line {e.lineno})") from None
-    if isinstance(doc, list):  # the first format: completion rows only, meshes at fixed paths
-        rows, grasps, seed, files = doc, [], None, None
-        if not rows:
-            raise ViewFileError("no rows")
-        head = rows[0]
-    elif isinstance(doc, dict):
-        rows, grasps, seed, files, head = doc.get("rows"), doc.get("grasps") or [], doc.get("seed"), \
-            doc.get("files"), doc
-        if not isinstance(rows, list):
-            raise ViewFileError("no 'rows' list")
-        if not isinstance(grasps, list) or not all(isinstance(g, dict) for g in grasps):
-            raise ViewFileError("'grasps' is not a list of objects")
-    else:
-        raise ViewFileError(f"a JSON {type(doc).__name__}, not a view")
-    if not isinstance(head, dict):
-        raise ViewFileError("rows are not objects")
-    try:
-        name, view = str(head["object"]), int(head["view"])
-    except (KeyError, TypeError, ValueError):
-        raise ViewFileError("no object name and view number") from None
-    for r in rows:
-        if not isinstance(r, dict) or r.get("object", name) != name or int(r.get("view", view)) != view \
-                or "method" not in r:
-            raise ViewFileError("rows of different views, or without a method")
-    view_set = str(head.get("view_set") or (rows[0].get("view_set") if rows else "") or catalogue.view_split(name, view))
-    stem = view_stem(name, view)
-    if not isinstance(files, dict):
-        files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS}
-    files = {str(k): str(v) for k, v in files.items() if isinstance(v, str) and (root / v).is_file()}
-    return {"object": name, "view": view, "view_set": view_set, "seed": None if seed is None else int(seed),
-            "files": files, "rows": rows, "grasps": grasps}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -386,9 +319,10 @@ class ResultsStore:
             db.execute("ROLLBACK")
             raise
 
-    def _ingest(self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old, report: SyncReport) -> None:
+    def _ingest(self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old,
+                report: SyncReport) -> None:
         try:
-            parsed = parse_view_file(path.read_text(), rel, self.root)
+            parsed = parse_view_file(path.read_text(), self.root)
         except (OSError, UnicodeDecodeError, ViewFileError) as e:
             why = str(e)
             if old is None or old[2] != "bad":  # warn once per version of the file
@@ -415,7 +349,7 @@ class ResultsStore:
             completions = {}
             for r in parsed["rows"]:
                 m = str(r["method"])
-                completions[m] = (name, view, m, *[_db(_num(r.get(k))) for k in METRICS], _db(_num(r.get("seconds"))),
+                completions[m] = (name, view, m, *[_db(_as_float(r.get(k))) for k in (*METRICS, "seconds")],
                                   str(r.get("error") or ""), files.get(m))
             slots = ", ".join("?" * (6 + len(METRICS)))
             db.executemany(f"INSERT INTO completions VALUES ({slots})", completions.values())
@@ -426,7 +360,8 @@ class ResultsStore:
                 gfile = gfile if isinstance(gfile, str) and (self.root / gfile).is_file() else None
                 n = g.get("n")
                 grasps[(method, hand)] = (name, view, method, hand, gfile, int(n) if isinstance(n, (int, float)) else 0,
-                                          *[_db(_num(g.get(k))) for k in GRASP_FIELDS[1:]], str(g.get("error") or ""))
+                                          *[_db(_as_float(g.get(k))) for k in GRASP_FIELDS[1:]],
+                                          str(g.get("error") or ""))
             db.executemany("INSERT INTO grasps VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", grasps.values())
             db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
                        (rel, st.st_mtime_ns, st.st_size, name, view))
@@ -545,10 +480,10 @@ class ResultsStore:
     def views(self, name: str) -> list[ViewInfo]:
         """The views of an object that have results, by view number."""
         return [ViewInfo(*r) for r in self._read(
-            "SELECT object, view, view_set, seed, file, truth, points FROM views WHERE object=? ORDER BY view", (name,))]
+            f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? ORDER BY view", (name,))]
 
     def view(self, name: str, view: int) -> ViewInfo:
-        rows = self._read("SELECT object, view, view_set, seed, file, truth, points FROM views WHERE object=? AND view=?",
+        rows = self._read(f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? AND view=?",
                           (name, int(view)))
         if not rows:
             raise KeyError(f"no results for {name!r} view {view} in {self.root}")
@@ -590,43 +525,48 @@ class ResultsStore:
         return out
 
     # ------------------------------------------------------------------------------------------
-    # Summaries (paper Tables I-IV)
+    # Summaries (paper Tables I-V)
 
     def summary(self) -> dict:
-        """Per view set and method means (:func:`evaluate.summarize`'s format)."""
-        return summarize(self.rows())
+        """Per view set and method means of the completion rows (:func:`tables.summarize`)."""
+        return tables.summarize(self.rows())
 
     def grasp_summary(self) -> dict:
-        """``{view_set: {method: {"n": views, "failed": views, <GRASP_FIELDS means>}}}`` over views with grasps."""
+        """``{view_set: {method: {"n": views, "failed": views, <means>}}}`` over views with grasps:
+        ``n`` views whose grasp stage ran, ``failed`` views where it failed, and the means over the
+        ``n`` views of their per-view means (``GRASP_FIELDS`` but ``n``). Quick (the index only);
+        :meth:`grasp_tables_summary` pools the grasps instead, as the evaluation's tables do."""
         out: dict = {}
-        cols = ", ".join(f"AVG(CASE WHEN g.error='' THEN g.{k} END)" for k in GRASP_FIELDS)
+        means = GRASP_FIELDS[1:]
+        cols = ", ".join(f"AVG(CASE WHEN g.error='' THEN g.{k} END)" for k in means)
         for view_set, method, n, failed, *vals in self._read(
                 f"SELECT v.view_set, g.method, SUM(g.error=''), SUM(g.error!=''), {cols} FROM grasps g "
                 "JOIN views v ON v.object=g.object AND v.view=g.view GROUP BY v.view_set, g.method"):
             out.setdefault(view_set, {})[method] = {"n": int(n or 0), "failed": int(failed or 0),
-                                                    **dict(zip(GRASP_FIELDS, map(_undb, vals)))}
+                                                    **dict(zip(means, map(_undb, vals)))}
         return out
 
+    def grasp_tables_summary(self) -> dict:
+        """Tables IV/V cells (:func:`tables.summarize_grasps`) over every grasp in the store, as
+        ``shapeviewer evaluate`` computes them: pooled over the grasps, read from the grasp files."""
+        records: dict[tuple[str, int], dict] = {}
+        for name, view, view_set, method, hand, gfile, n, seconds_plan, error in self._read(
+                "SELECT g.object, g.view, v.view_set, g.method, g.hand, g.file, g.n, g.seconds_plan, g.error "
+                "FROM grasps g JOIN views v ON v.object=g.object AND v.view=g.view ORDER BY g.object, g.view"):
+            rec = records.setdefault((name, view), {"object": name, "view": view, "view_set": view_set, "grasps": []})
+            rec["grasps"].append({"method": method, "hand": hand, "file": gfile or "", "n": int(n or 0),
+                                  "seconds_plan": _undb(seconds_plan), "error": error or ""})
+        return tables.summarize_grasps(list(records.values()), load_grasp_rows(self.root, list(records.values())))
+
     def tables_markdown(self) -> str:
-        """Tables I-III (completion) and, when grasp results exist, Table IV (grasps), with the paper's figures."""
-        md = tables_markdown(self.summary())
-        grasps = self.grasp_summary()
+        """The evaluation's ``tables.md`` for the whole store: Tables I-III, per shape kind, and
+        Tables IV/V when grasp results exist, with the paper's figures (:mod:`.tables`)."""
+        rows = self.rows()
+        md = tables.completion_tables_markdown(tables.summarize(rows)) + tables.kind_table_markdown(rows)
+        grasps = self.grasp_tables_summary()
         if not grasps:
-            return md + "\n_No grasp results in this store (Table IV)._\n"
-        lines = ["## Table IV: grasps planned on the completion, executed on the true object", "",
-                 "| View set | Method | views | joint error (deg) | pose error (mm) | lift success | paper joint / pose |",
-                 "|---|---|---:|---:|---:|---:|---|"]
-        for s in VIEW_SETS:
-            for i, m in enumerate(METHODS):
-                c = grasps.get(s, {}).get(m)
-                if c is None:
-                    continue
-                paper = [PAPER_GRASP[k].get(s) for k in ("joint_error_deg", "pose_error_mm")]
-                col = PAPER_COLUMN.get(m, -1)
-                ref = f"{paper[0][col]:.2f} / {paper[1][col]:.1f}" if paper[0] and col >= 0 else "–"
-                lines.append(f"| {SET_TITLES[s]} | {m} | {c['n']} | {_fmt(c['joint_error_deg'], 2)} | "
-                             f"{_fmt(c['pose_error_mm'], 1)} | {_fmt_share(c['lift_success'])} | {ref} |")
-        return md + "\n" + "\n".join(lines) + "\n"
+            return md + "\n_No grasp results in this store (Tables IV and V)._\n"
+        return md + tables.grasp_tables_markdown(grasps)
 
     # ------------------------------------------------------------------------------------------
     # Files
@@ -698,43 +638,16 @@ class ResultsStore:
         return None
 
     # ------------------------------------------------------------------------------------------
-    # CSV exports
+    # CSV exports (rendered by .tables; kept as methods for shapeviewer.viewer.dataset)
 
     def view_csv(self, name: str, view: int) -> str:
-        """Per-method metrics (and grasp summaries) of one view as CSV text."""
-        info = self.view(name, view)
-        grasps = {g.method: g for g in self.grasps(name, view)}
-        buf = io.StringIO()
-        w = csv.writer(buf)
-        w.writerow(["object", "view", "view_set", "method", *METRICS, "seconds", "error", "mesh",
-                    "grasp_hand", *(f"grasp_{k}" for k in GRASP_FIELDS), "grasp_error"])
-        for c in self.completions(name, view):
-            g = grasps.get(c.method)
-            gcols = [g.hand, *(getattr(g, k) for k in GRASP_FIELDS), g.error] if g else [""] * (len(GRASP_FIELDS) + 2)
-            w.writerow([name, view, info.view_set, c.method, *(getattr(c, k) for k in METRICS), c.seconds, c.error,
-                        c.mesh or "", *gcols])
-        return buf.getvalue()
+        return tables.view_csv(self.view(name, view), self.completions(name, view), self.grasps(name, view))
 
     def objects_csv(self, objects: Iterable[ObjectSummary]) -> str:
-        """Objects (e.g. :meth:`objects`' result) as CSV text: name, split, source, size (m), views,
-        and each method's mean metrics and failures."""
-        buf = io.StringIO()
-        w = csv.writer(buf)
-        w.writerow(["object", "split", "source", "extent_x_m", "extent_y_m", "extent_z_m", "views",
-                    *(f"{m}_{k}" for m in METHODS for k in (*METRICS, "seconds", "failed"))])
-        for o in objects:
-            w.writerow([o.name, o.split, o.source, *o.extents, o.views,
-                        *(v for m in METHODS for v in (*(o.mean(m, k) for k in (*METRICS, "seconds")),
-                                                       o.failed.get(m, 0)))])
-        return buf.getvalue()
+        return tables.objects_csv(objects)
 
     def rows_csv(self, names: Iterable[str] | None = None) -> str:
-        """Every completion row (of ``names``, default all objects) as CSV text, the evaluation's columns."""
-        buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=ROW_FIELDS)
-        w.writeheader()
-        w.writerows(self.rows(names))
-        return buf.getvalue()
+        return tables.csv_text(ROW_FIELDS, self.rows(names))
 
 
 def read_mesh(path: Path):
@@ -757,125 +670,3 @@ def read_points(path: Path) -> np.ndarray:
     with open(path, "rb") as f:
         return np.asarray(load_ply(f)["vertices"], dtype=np.float64).reshape(-1, 3)
 
-
-def _fmt(v: float, digits: int) -> str:
-    return "–" if v is None or math.isnan(v) else f"{v:.{digits}f}"
-
-
-def _fmt_share(v: float) -> str:
-    return "–" if v is None or math.isnan(v) else f"{100 * v:.0f}%"
-
-
-# ----------------------------------------------------------------------------------------------
-# Writing view files (the current format) and the sample store
-
-
-def write_view_record(root: str | Path, record: dict) -> Path:
-    """Write a view record (:func:`evaluate.view_record`'s format) to ``views/<stem>.json`` atomically.
-
-    The temp file is not ``*.json``, so a concurrent :meth:`ResultsStore.sync` never reads it half written.
-    """
-    path = Path(root) / "views" / f"{view_stem(record['object'], record['view'])}.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(record, indent=1))  # NaN is written as NaN, which json reads back
-    os.replace(tmp, path)
-    return path
-
-
-# A few objects and views for a first look (``python app.py`` without --results): household YCB
-# objects of both model splits and a pybullet toy, views from all three evaluation sets, and
-# tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
-SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
-    ("ycb/021_bleach_cleanser", 0), ("ycb/021_bleach_cleanser", 120),
-    ("ycb/006_mustard_bottle", 100), ("ycb/006_mustard_bottle", 420),
-    ("ycb/025_mug", 180), ("ycb/025_mug", 0),
-    ("ycb/035_power_drill", 300),
-    ("pybullet/duck", 0),
-    ("ycb/025_mug", 10_003), ("household/spray_bottle_004", 10_001), ("household/bowl_003", 10_002),
-)
-SAMPLE_VERSION = 2
-SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
-
-
-def sample_grasp_options():
-    """Grasps of the sample store: 5 Barrett grasps per completion from a smaller (still
-    deterministic) search than the evaluation's, about 5 s per view and method on 2 cores."""
-    from .run import GraspOptions
-    from ..grasp.plan import PlanSettings
-
-    return GraspOptions(n_grasps=5, settings=PlanSettings(samples=256, chains=16, steps=100, simulate=15))
-
-
-def sample_store_dir(weights: str | Path | None = None) -> Path:
-    """Where the sample store of the given CNN weights lives (under :func:`catalogue.cache_dir`).
-
-    The folder name holds a hash of the weights file, so new weights get a new sample store.
-    """
-    from ..model import DEFAULT_WEIGHTS
-
-    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
-    tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
-    return catalogue.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
-
-
-def sample_store_complete(root: str | Path) -> bool:
-    return (Path(root) / SAMPLE_DONE).is_file()
-
-
-def build_sample_store(root: str | Path, views: Iterable[tuple[str, int]] = SAMPLE_VIEWS, weights=None,
-                       seed: int = 0, progress: Callable[[int, int, str], None] | None = None,
-                       completer=None, grasps=True) -> ResultsStore:
-    """Evaluate ``views`` as ``shapeviewer evaluate`` does into a results store: first every view's
-    four completions, then (``grasps``: True for :func:`sample_grasp_options`, a
-    :class:`evaluate.GraspOptions`, or None) grasps planned on each and executed on the truth.
-
-    Finished work is skipped, so an interrupted build resumes. ``progress(done, total, what)`` is
-    called before each step and at the end; the store is synced after every step so that a reader
-    sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
-    """
-    from .run import evaluate_view, grasp_view, load_view, pending_grasps, view_record
-    from .viewsets import view_set_of
-
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
-    store = ResultsStore(root)
-    views = list(views)
-    options = sample_grasp_options() if grasps is True else grasps
-    total = len(views) * (2 if options is not None else 1)
-    done = 0
-
-    def step(what: str) -> None:
-        if progress is not None:
-            progress(done, total, what)
-
-    records = {}
-    for name, view in views:
-        record = load_view(root, name, view, seed)
-        if record is None:
-            step(f"completing {name} view {view}")
-            if completer is None:
-                from ..model import load_completer
-
-                completer = load_completer(weights)
-            view_set = view_set_of(name, view)
-            rows = evaluate_view(name, view, completer, root, seed=seed, view_set=view_set)
-            record = view_record(root, name, view, view_set, seed, rows)
-            write_view_record(root, record)
-            store.sync()
-        records[(name, view)] = record
-        done += 1
-    if options is not None:
-        for name, view in views:
-            record = records[(name, view)]
-            for method in pending_grasps(record, options):
-                step(f"grasping {name} view {view} ({method})")
-                entry = grasp_view(root, record, method, options)
-                record["grasps"] = [g for g in record["grasps"] if (g["method"], g["hand"]) != (method, options.hand)]
-                record["grasps"].append(entry)
-                write_view_record(root, record)
-                store.sync()
-            done += 1
-    (root / SAMPLE_DONE).write_text(json.dumps({"views": views, "grasps": options is not None}))
-    step("done")
-    return store

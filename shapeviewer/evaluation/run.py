@@ -1,49 +1,39 @@
-"""The paper's completion tables (Tables I-III, SPEC §7): Partial, Mirror, Ours-fast, Ours-detailed.
+"""Running the evaluation: per-view completions (Tables I-III, SPEC §7), the grasp stage (Tables IV
+and V, SPEC §8), the runner over local processes or a Ray cluster, and the Dataset tab's sample store.
 
-Test set (as in the paper): ``n_per_set`` views of each of the three evaluation sets,
-*training views*, *holdout views* and *holdout models* (:func:`catalogue.view_split`), drawn with a
-seed from the catalogue objects and the 726-view orientation grid. Each view is rendered exactly as
-the training data is (:func:`generate.view_pose`, :func:`generate.render_view` with the live camera
-model ``Intrinsics.kinect()`` and ``KinectNoise``, the same noise seed as ``generate``), so a
-*training view* here is the very view the network may have trained on.
+Test views: :mod:`.viewsets` (``paper``: the paper's three view sets of floating objects, rendered
+exactly as the training data is; ``tabletop``: robot views of a table, segmented by the app).
 
-Per view and method: the completed mesh (camera frame), the completion time, and the three metrics
-of :func:`metrics.completion_metrics` against the ground-truth mesh (the catalogue mesh centred on
-its bounding-box centroid, as ``generate`` does, moved by ``T_cam_obj``).
+Per view and method (Partial, Mirror, Hull, Ours-fast, Ours-detailed): the completed mesh (camera
+optical frame, metres), the completion time (s), and the metrics of
+:func:`metrics.completion_metrics` against the ground-truth mesh. Times: Ours-fast = voxelize + CNN
++ marching cubes; Ours-detailed = voxelize + CNN + Algorithm 1 (the CNN runs once, its time counted
+in both).
 
-Mirror baseline and the support plane: the rendered object floats alone in an arbitrary
-orientation on the roll-pitch-yaw grid (no table, as in the paper's views), so no support plane
-is given (``support_plane_cam=None``) and :func:`baselines.mirror_mesh` runs its documented
-no-table rule (mirror plane normal = horizontal direction from the camera to the points, only the
-position searched). Constructing a "table" from the true object pose would leak the ground truth
-into a baseline, which a real robot looking at a floating object could not know.
+Mirror baseline and the support plane: the paper's views float alone (no table), so no support
+plane is given and :func:`baselines.mirror_mesh` runs its documented no-table rule. Constructing a
+"table" from the true object pose would leak the ground truth into a baseline, which a real robot
+looking at a floating object could not know. Tabletop views give the plane the segmentation found
+to Mirror and to our completion.
 
-Times: Ours-fast = voxelize + CNN + marching cubes; Ours-detailed = voxelize + CNN + Algorithm 1
-(the CNN is run once and its time counted in both).
+Grasps (``grasps=True`` or a :class:`GraspOptions`): for every view and each of the options'
+methods, up to ``n_grasps`` grasps are planned on the completion (:func:`grasp.plan.plan`) and
+every one is executed on the ground-truth mesh (:func:`grasp.execute.execute_grasps`, the paper's
+protocol, then the dynamic lift test). Planning costs about the same on every mesh, so both of our
+meshes are evaluated; the paper's one "Ours" is compared with Ours-detailed (:mod:`.tables`).
+Floating views run without a table in the *evaluation world frame* ``T_WORLD_CAM`` (the body frame
+of a level camera at the origin, so that the lift test's gravity, -z, points down the image);
+tabletop views in the table frame of the plane the segmentation found.
 
-Grasps (Tables IV and V, SPEC §8; ``grasps=True``): for every view and each of ``GRASP_METHODS``
-(Partial, Mirror, Ours-fast and Ours-detailed: planning costs about the same on every mesh, so
-both of our meshes are evaluated; the paper's one "Ours" is compared with Ours-detailed), up to
-``n_grasps`` grasps are planned on the completion (:func:`grasp.plan.plan`) and every one is
-executed on the ground-truth mesh (:func:`grasp.execute.execute_grasps`, the paper's protocol,
-then the dynamic lift test). Both run with ``table=False`` (the object floats, as rendered) in
-the *evaluation world frame* ``T_WORLD_CAM``: the body frame of a level camera at the origin
-(x forward = camera z, y left = -camera x, z up = -camera y), so that the lift test's gravity
-(-z) points down the image. Recorded per grasp: planned epsilon and volume, executed epsilon,
-joint error (deg), pose error (mm), lift success; per view and method their means.
-
-Outputs in ``out_dir``: ``views/<object>__<view>.json`` (one per view, see :func:`view_record`;
-the run resumes by skipping finished work: the completions of a view, then each grasp method),
-``rows.csv`` (all completion rows), ``meshes/<object>__<view>__<method>.ply`` plus
-``__truth.ply`` and ``__points.ply`` (camera frame), ``grasps/<object>__<view>__<method>.json``
-(:func:`grasp.export.grasps_to_json`, planned and executed, evaluation world frame; a hand other
-than the Barrett adds ``__<hand>``), ``grasp_rows.csv`` (one row per executed grasp), and
-``tables.md`` / ``tables.csv``.
+Outputs in ``out_dir`` (layout: :mod:`.records`): one record per view in ``views/`` (the run
+resumes by skipping finished work: a view's completions, then each grasp method), its meshes and
+grasp files, ``rows.csv`` (completion rows), ``grasp_rows.csv`` (one row per executed grasp) and
+``tables.md`` / ``tables.csv`` (:mod:`.tables`).
 """
 
 from __future__ import annotations
 
-import csv
+import hashlib
 import json
 import logging
 import math
@@ -52,69 +42,54 @@ import os
 import time
 import traceback
 import zlib
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..backends import BACKENDS, ray_init
+from ..fileio import atomic_write
 from ..sim import catalogue
-from .viewsets import SET_TITLES, VIEW_SETS, render_view, sample_views
+from .records import (
+    GRASP_MEANS,
+    GRASP_ROW_FIELDS,
+    METHODS,
+    METRICS,
+    ROW_FIELDS,
+    grasp_file,
+    grasp_rows,
+    load_grasp_rows,
+    load_view,
+    save_view,
+    set_grasp_entry,
+    upgrade_old_views,
+    view_record,
+    view_stem,
+)
+from .tables import (
+    completion_tables_markdown,
+    csv_text,
+    grasp_tables_markdown,
+    kind_table_markdown,
+    summarize,
+    summarize_grasps,
+    write_tables_csv,
+)
+from .viewsets import render_view, sample_views, view_set_of
+
+if TYPE_CHECKING:  # imported lazily at run time: pybullet is heavy
+    from ..grasp.plan import PlanSettings
 
 log = logging.getLogger(__name__)
-
-METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
-METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
-ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error")
-# SPEC §7: the paper's figures, {metric: {view_set: (Partial, Mirror, Ours)}}.
-PAPER = {
-    "jaccard": {"training_view": (0.118, 0.233, 0.777), "holdout_view": (0.131, 0.239, 0.749),
-                "holdout_model": (0.093, 0.192, 0.650)},
-    "hausdorff_mean_mm": {"training_view": (11.4, 7.5, 3.6), "holdout_view": (12.3, 8.2, 4.0),
-                          "holdout_model": (13.6, 10.7, 5.9)},
-    "geodesic": {"training_view": (0.377, 0.291, 0.087), "holdout_view": (0.494, 0.337, 0.093),
-                 "holdout_model": (0.341, 0.280, 0.141)},
-}
-TABLES = (("I", "jaccard", "Jaccard similarity (higher is better)"),
-          ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
-          ("III", "geodesic", "Geodesic divergence (lower is better)"),
-          ("J80", "j80", "Jaccard of the solids sampled at 80^3 points, J80 (higher is better)"))
-
-GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
-# Per view and method, means over its grasps (the keys of a view's "grasps" entries).
-GRASP_MEANS = ("joint_error_deg", "pose_error_mm", "epsilon_planned", "volume_planned", "epsilon_executed",
-               "volume_executed", "force_closure_planned", "force_closure_executed", "start_clear", "lift_success")
-GRASP_ROW_FIELDS = ("object", "view", "view_set", "method", "hand", "rank", "epsilon_planned", "volume_planned",
-                    "energy_planned", "epsilon_executed", "volume_executed", "joint_error_deg", "pose_error_mm",
-                    "start_clear", "approach_contact", "lift_success", "lift_rise_mm", "lift_slip_mm")
-# SPEC §8: the paper's Table IV, {quantity: {view_set: (Partial, Mirror, Ours)}}. SPEC gives the
-# training-view and holdout-model rows only; the holdout-view row is left blank rather than guessed.
-PAPER_GRASP = {
-    "joint_error_deg": {"training_view": (6.09, 4.20, 1.75), "holdout_model": (7.59, 5.82, 4.56)},
-    "pose_error_mm": {"training_view": (16.0, 11.5, 4.3), "holdout_model": (18.3, 15.0, 13.2)},
-}
-# SPEC §8: the paper's Table V, real-robot grasp success (15 objects), Partial / Mirror / Ours.
-PAPER_LIFT = (0.714, 0.733, 0.933)
-# The paper's one "Ours" is compared with our detailed mesh; -1: the paper has no such column.
-PAPER_COLUMN = {"Partial": 0, "Mirror": 1, "Hull": -1, "Ours-fast": -1, "Ours-detailed": 2}
-
-
-def paper_figure(metric: str, view_set: str, method: str) -> float:
-    """The paper's Table I-III figure for a cell (NaN where the paper has none)."""
-    col = PAPER_COLUMN.get(method, -1)
-    row = PAPER.get(metric, {}).get(view_set)
-    return math.nan if row is None or col < 0 else row[col]
-
-
-def _stem(name: str, view: int) -> str:
-    return f"{name.replace('/', '__')}__{view:03d}"
 
 
 def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: int = 0,
                   view_set: str | None = None) -> list[dict]:
-    """Every method on one view: one row per method (a failing method records its error).
-
-    Tabletop views give the support plane the segmentation found to Mirror and to our completion.
-    """
+    """Every method on one view: one completion row per method (a failing method records its
+    error), each carrying the view's ``support_plane`` for :func:`records.view_record`. Meshes go
+    to ``out_dir/meshes`` (camera optical frame, metres)."""
     from ..baselines import hull_mesh, mirror_mesh, partial_mesh
     from ..metrics import completion_metrics
     from ..reconstruct import detailed_mesh, fast_mesh
@@ -123,7 +98,7 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
     view_set = view_set or catalogue.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
     mesh_dir.mkdir(parents=True, exist_ok=True)
-    stem = _stem(name, view)
+    stem = view_stem(name, view)
     base = {"object": name, "view": int(view), "view_set": view_set, "kind": catalogue.shape_kind(name), "sensor": ""}
     try:
         observed = render_view(name, view, view_set, seed)
@@ -132,7 +107,6 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
                  "error": f"render: {e}"} for m in METHODS]
     points, truth, plane = observed.points_cam, observed.truth_cam, observed.support_plane
     base["sensor"] = observed.sensor
-    # Carried by the rows to the view's record (see view_record), where the grasp stage finds it.
     base["support_plane"] = None if plane is None else [float(v) for v in plane]
     truth.export(mesh_dir / f"{stem}__truth.ply")
     if len(points):
@@ -146,7 +120,7 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
         if not cnn:
             t0 = time.perf_counter()
             x, frame = partial_to_grid(points)
-            probs = completer.predict(x, context=context_grids(points, frame, plane))
+            probs = completer.predict(x, context=context_grids(points, frame, support_plane=plane))
             cnn.update(probs=probs, frame=frame, seconds=time.perf_counter() - t0)
         return cnn
 
@@ -187,67 +161,6 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-view records
-
-
-def _view_file(out_dir, name: str, view: int) -> Path:
-    return Path(out_dir) / "views" / f"{_stem(name, view)}.json"
-
-
-def _mesh_files(out_dir, stem: str) -> dict[str, str]:
-    """Paths relative to ``out_dir`` of the view's meshes that exist: ``truth``, ``points`` and
-    each method's completion (all camera frame, metres)."""
-    files = {}
-    for key in ("truth", "points", *METHODS):
-        rel = f"meshes/{stem}__{key}.ply"
-        if (Path(out_dir) / rel).exists():
-            files[key] = rel
-    return files
-
-
-def view_record(out_dir, name: str, view: int, view_set: str, seed: int, rows: list[dict]) -> dict:
-    """A view's record, as saved in ``views/<stem>.json``::
-
-        {"object", "view", "view_set", "seed", "support_plane": [a, b, c, d] (camera frame) or None,
-         "files": {"truth": "meshes/..", "points": "meshes/..", "<method>": "meshes/.."},
-         "rows": [completion rows, ROW_FIELDS],
-         "grasps": [one entry per (method, hand), see grasp_view]}
-
-    ``files`` lists only meshes that exist (a failed method has none); paths are relative to
-    ``out_dir``.
-    """
-    planes = [r.pop("support_plane", None) for r in rows]
-    return {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed),
-            "support_plane": next((p for p in planes if p is not None), None),
-            "files": _mesh_files(out_dir, _stem(name, view)), "rows": rows, "grasps": []}
-
-
-def load_view(out_dir, name: str, view: int, seed: int | None = None) -> dict | None:
-    """The record of a view (see :func:`view_record`), or None when it has not been computed.
-
-    Files of the first format (a bare list of completion rows, which did not store the seed)
-    are returned as records with ``seed`` (the caller's run seed) and the meshes found on disk.
-    """
-    path = _view_file(out_dir, name, view)
-    if not path.exists():
-        return None
-    data = json.loads(path.read_text())
-    if isinstance(data, list):
-        view_set = data[0]["view_set"] if data else catalogue.view_split(name, view)
-        return view_record(out_dir, name, view, view_set, -1 if seed is None else seed, data)
-    data.setdefault("grasps", [])
-    return data
-
-
-def _save_view(out_dir, record: dict) -> None:
-    path = _view_file(out_dir, record["object"], record["view"])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(record, indent=1))  # NaN is written as NaN, which json reads back
-    os.replace(tmp, path)
-
-
-# ----------------------------------------------------------------------------------------------
 # Grasps (Tables IV and V)
 
 # The evaluation world frame (see the module docstring): a level camera's body frame, camera at
@@ -258,6 +171,8 @@ T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0],
                         [0.0, 0.0, 0.0, 1.0]])
 GRASP_FRAME = ("evaluation world: level camera body frame, camera at the origin, x forward (camera z), "
                "y left (-camera x), z up (-camera y); no table")
+TABLE_GRASP_FRAME = "table frame of the segmentation's support plane (z up, table at z = 0)"
+GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
 
 
 @dataclass(frozen=True)
@@ -270,7 +185,7 @@ class GraspOptions:
     hand: str = "barrett"
     n_grasps: int = 20
     budget_seconds: float | None = None
-    settings: object | None = None  # grasp.plan.PlanSettings (imported lazily: pybullet is heavy)
+    settings: PlanSettings | None = None
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -282,18 +197,13 @@ class GraspOptions:
             raise ValueError(f"n_grasps must be at least 1, got {self.n_grasps}")
 
 
-def grasp_file(stem: str, method: str, hand: str = "barrett") -> str:
-    """Path (relative to the results folder) of a view's grasps for one method and hand."""
-    return f"grasps/{stem}__{method}{'' if hand == 'barrett' else '__' + hand}.json"
-
-
 def plan_seed(seed: int, name: str, view: int) -> int:
     """The planner's seed for a view: the same for every method, so that the methods differ only
     in the mesh they plan on."""
     return int(np.random.SeedSequence([seed, zlib.crc32(name.encode()), int(view), 13]).generate_state(1)[0])
 
 
-def _world_mesh(path: Path, T_world_cam: np.ndarray = T_WORLD_CAM):
+def _world_mesh(path: Path, T_world_cam: np.ndarray):
     """A saved camera-frame mesh moved into a world frame (metres)."""
     import trimesh
 
@@ -313,34 +223,13 @@ def grasp_world(record: dict) -> tuple[np.ndarray, bool]:
     return table_frame(np.asarray(record["support_plane"], dtype=np.float64)), True
 
 
-def grasp_rows(base: dict, grasps, executions) -> list[dict]:
-    """One row (``GRASP_ROW_FIELDS``) per planned grasp and its execution on the true object.
-
-    ``base``: object, view, view_set, method, hand. Units: joint error in degrees (mm for the
-    Panda's prismatic fingers), pose error, lift rise and slip in mm; booleans as 0/1.
-    """
-    rows = []
-    for rank, (g, e) in enumerate(zip(grasps, executions)):
-        lift = e.lift
-        rows.append({**base, "rank": rank, "epsilon_planned": float(g.epsilon), "volume_planned": float(g.volume),
-                     "energy_planned": float(g.energy), "epsilon_executed": float(e.epsilon),
-                     "volume_executed": float(e.volume), "joint_error_deg": float(e.joint_error),
-                     "pose_error_mm": float(e.pose_error), "start_clear": float(e.start_clear),
-                     "approach_contact": float(e.approach_contact),
-                     "lift_success": math.nan if lift is None else float(lift.success),
-                     "lift_rise_mm": math.nan if lift is None else 1000.0 * lift.rise,
-                     "lift_slip_mm": math.nan if lift is None else 1000.0 * lift.slip})
-    return rows
-
-
 def grasp_means(rows: list[dict]) -> dict:
     """Means over one view's grasp rows (``GRASP_MEANS``; NaN without grasps) and
     ``lift_success_best``: whether the planner's best grasp (rank 0, the one a robot would
     execute) lifted the object; 0 when no grasp was found (a robot would have had nothing to try)."""
-    planned_fc = [float(r["epsilon_planned"] > 0) for r in rows]
-    executed_fc = [float(r["epsilon_executed"] > 0) for r in rows]
-    out = {"force_closure_planned": planned_fc, "force_closure_executed": executed_fc}
-    means = {k: (float(np.mean(out[k] if k in out else [r[k] for r in rows])) if rows else math.nan)
+    derived = {"force_closure_planned": [float(r["epsilon_planned"] > 0) for r in rows],
+               "force_closure_executed": [float(r["epsilon_executed"] > 0) for r in rows]}
+    means = {k: (float(np.mean(derived[k] if k in derived else [r[k] for r in rows])) if rows else math.nan)
              for k in GRASP_MEANS}
     means["lift_success_best"] = float(rows[0]["lift_success"]) if rows else 0.0
     return means
@@ -349,20 +238,18 @@ def grasp_means(rows: list[dict]) -> dict:
 def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = GraspOptions()) -> dict:
     """Plan grasps on one view's ``method`` completion and execute each on its true mesh.
 
-    Both meshes are read from ``out_dir`` (camera frame) and moved to the evaluation world frame
-    (``T_WORLD_CAM``); planning and execution run without a table (the object floats). The
-    grasps, planned and executed, go to ``grasp_file(...)`` with the frame in their ``meta``.
-    Returns the view's entry: ``{"method", "hand", "file", "n", <GRASP_MEANS means>,
-    "lift_success_best", "n_requested", "plan_seed", "seconds_plan", "seconds_execute", "frame",
-    "error"}``; a failure (no mesh, planner error) records ``error`` and NaN means.
+    Both meshes are read from ``out_dir`` (camera frame) and moved to the grasp world of
+    :func:`grasp_world`. The grasps, planned and executed, go to ``grasp_file(...)`` with the frame
+    in their ``meta``. Returns the view's entry: ``{"method", "hand", "file", "n", <GRASP_MEANS
+    means>, "lift_success_best", "n_requested", "plan_seed", "seconds_plan", "seconds_execute",
+    "frame", "error"}``; a failure (no mesh, planner error) records ``error`` and NaN means.
     """
     from ..grasp.execute import execute_grasps
-    from ..grasp.serialize import grasps_to_json
     from ..grasp.plan import PlanSettings, plan
+    from ..grasp.serialize import grasps_to_json
 
     out = Path(out_dir)
     name, view = record["object"], int(record["view"])
-    stem = _stem(name, view)
     seed = plan_seed(record["seed"], name, view)
     entry = {"method": method, "hand": options.hand, "file": "", "n": 0,
              **grasp_means([]), "lift_success_best": math.nan, "n_requested": int(options.n_grasps),
@@ -379,7 +266,7 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         if table:  # the estimated table may sit a few mm high: the true object must not start inside it
             truth.apply_translation([0.0, 0.0, max(0.0, -float(truth.bounds[0, 2]))])
         t0 = time.perf_counter()
-        result = plan(completion, options.hand, options.n_grasps, seed=seed, table=table,
+        result = plan(completion, hand=options.hand, n_grasps=options.n_grasps, seed=seed, table=table,
                       budget_seconds=options.budget_seconds, settings=options.settings or PlanSettings())
         t1 = time.perf_counter()
         executions = execute_grasps(result.grasps, truth, table=table, lift=True)
@@ -388,18 +275,14 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         entry["error"] = f"{type(e).__name__}: {e}"
         log.info("%s view %d %s grasps failed:\n%s", name, view, method, traceback.format_exc())
         return entry
-    rel = grasp_file(stem, method, options.hand)
+    rel = grasp_file(view_stem(name, view), method, options.hand)
     meta = {"object": name, "view": view, "view_set": record["view_set"], "method": method,
-            "frame": GRASP_FRAME if not table else "table frame of the segmentation's support plane (z up, table at z = 0)",
+            "frame": TABLE_GRASP_FRAME if table else GRASP_FRAME,
             "T_world_cam": T_world_cam.tolist(), "planned_on": record["files"][method],
             "executed_on": record["files"]["truth"], "table": table, "plan_seed": seed,
             "plan_stats": {"evaluations": result.stats.evaluations, "simulated": result.stats.simulated,
                            "seconds": result.stats.seconds, "cancelled": result.stats.cancelled}}
-    path = out / rel
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(grasps_to_json(result.grasps, executions, meta))
-    os.replace(tmp, path)
+    atomic_write(out / rel, grasps_to_json(result.grasps, executions, meta))
     base = {"object": name, "view": view, "view_set": record["view_set"], "method": method, "hand": options.hand}
     entry.update(file=rel, n=len(result.grasps), **grasp_means(grasp_rows(base, result.grasps, executions)),
                  seconds_plan=t1 - t0, seconds_execute=t2 - t1)
@@ -413,26 +296,28 @@ def pending_grasps(record: dict, options: GraspOptions) -> list[str]:
     return [m for m in options.methods if (m, options.hand) not in done]
 
 
-def load_grasp_rows(out_dir, records: list[dict]) -> list[dict]:
-    """Every executed grasp of the records' grasp entries, read back from their grasp files."""
-    from ..grasp.serialize import grasps_from_json
+# ----------------------------------------------------------------------------------------------
+# One view's work (shared by the runner and the sample store)
 
-    rows = []
-    for rec in records:
-        for g in rec.get("grasps", []):
-            if g["error"] or not g["file"]:
-                continue
-            gs = grasps_from_json((Path(out_dir) / g["file"]).read_text())
-            base = {"object": rec["object"], "view": int(rec["view"]), "view_set": rec["view_set"],
-                    "method": g["method"], "hand": g["hand"]}
-            rows += grasp_rows(base, gs.grasps, gs.executions)
-    return rows
+
+def _complete(out_dir, name: str, view: int, view_set: str, seed: int, completer) -> dict:
+    """Compute and save a view's completions; returns its record."""
+    rows = evaluate_view(name, view, completer, out_dir, seed=seed, view_set=view_set)
+    record = view_record(out_dir, name, view, view_set, seed, rows)
+    save_view(out_dir, record)
+    return record
+
+
+def _grasp(out_dir, record: dict, method: str, options: GraspOptions) -> None:
+    """Grasp one method of a view and save the record (an interrupted run loses at most this method)."""
+    set_grasp_entry(record, grasp_view(out_dir, record, method, options))
+    save_view(out_dir, record)
 
 
 # ----------------------------------------------------------------------------------------------
 # Runner
 
-
+# Per worker process: the run's weights and the CNN, loaded on first use (a grasp-only rerun never needs it).
 _WORKER: dict = {}
 
 
@@ -441,11 +326,10 @@ def _init_worker(weights, threads: int) -> None:
 
     torch.set_num_threads(threads)
     _WORKER.clear()
-    _WORKER["weights"] = weights
+    _WORKER.update(weights=weights, threads=threads)
 
 
 def _completer():
-    """The worker's CNN, loaded on first use (a grasp-only rerun never needs it)."""
     if "completer" not in _WORKER:
         from ..model import load_completer
 
@@ -454,62 +338,67 @@ def _completer():
 
 
 def _run_one(task) -> str:
-    """One view: its completions unless saved, then each pending grasp method (saved after each,
-    so an interrupted run loses at most one method's grasps)."""
+    """One view: its completions unless saved, then each pending grasp method."""
     name, view, view_set, out_dir, seed, options = task
     record = load_view(out_dir, name, view, seed)
     if record is None:
-        rows = evaluate_view(name, view, _completer(), out_dir, seed=seed, view_set=view_set)
-        record = view_record(out_dir, name, view, view_set, seed, rows)
-        _save_view(out_dir, record)
+        record = _complete(out_dir, name, view, view_set, seed, _completer())
     if options is not None:
         for method in pending_grasps(record, options):
-            entry = grasp_view(out_dir, record, method, options)
-            record["grasps"] = [g for g in record["grasps"] if (g["method"], g["hand"]) != (method, options.hand)]
-            record["grasps"].append(entry)
-            _save_view(out_dir, record)
+            _grasp(out_dir, record, method, options)
     return name
 
 
-def _upgrade_old_views(out: Path, views: list[tuple[str, int, str]], seed: int) -> None:
-    """Rewrite first-format view files (bare row lists) as records, so that every file in
-    ``views/`` has the current format."""
-    for n, v, _ in views:
-        path = _view_file(out, n, v)
-        if path.exists() and isinstance(json.loads(path.read_text()), list):
-            _save_view(out, load_view(out, n, v, seed))
+def _run_ray_task(task, weights) -> str:
+    """:func:`_run_one` in a Ray worker: torch gets the CPUs Ray assigned to the task; the worker
+    process keeps its CNN for the next task."""
+    import ray
+
+    threads = max(1, int(ray.get_runtime_context().get_assigned_resources().get("CPU", 1)))
+    if (_WORKER.get("weights"), _WORKER.get("threads")) != (weights, threads):
+        _init_worker(weights, threads)
+    return _run_one(task)
 
 
-def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=None, workers: int | None = None,
-             progress: bool = True, grasps: GraspOptions | bool | None = None, views: str = "paper") -> dict:
-    """Run the test set (resumable), then write ``rows.csv``, ``tables.md`` and ``tables.csv``
-    (and with ``grasps``, ``grasp_rows.csv`` and Tables IV/V).
+def run_views(out_dir, views: list[tuple[str, int, str]], *, seed: int = 0, weights=None, workers: int | None = None,
+              backend: str = "process", grasps: GraspOptions | None = None, progress: bool = True) -> int:
+    """Do the pending work of ``views`` (``(object, view, view_set)``): completions of views without
+    a record, then the grasp methods of ``grasps`` not yet done. Returns the number of views that
+    had work.
 
-    ``views``: ``paper`` (the paper's three view sets) or ``tabletop`` (:mod:`shapeviewer.evaluation.viewsets`).
-    ``grasps``: True or a :class:`GraspOptions` adds the grasp stage; finished completions are
-    read from ``meshes/``, never recomputed. Returns ``{"computed", "skipped", "rows", "summary",
-    "grasp_rows", "grasp_summary", "tables_md", "seconds"}``; ``summary`` is ``{view_set:
-    {method: {metric: mean, "seconds": mean, "n": ok rows, "failed": rows}}}``, ``grasp_summary``
-    as :func:`summarize_grasps`. ``computed`` counts views with any work done.
+    ``backend``: ``process`` (``workers`` local processes, default all cores; 1 runs in this
+    process) or ``ray`` (a Ray cluster: ``RAY_ADDRESS``, or a local one on ``workers`` CPUs; one
+    task per view, a CPU each). Both give the same records.
     """
-    options = GraspOptions() if grasps is True else (grasps or None)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    views = sample_views(n_per_set, seed, views)
-    _upgrade_old_views(out, views, seed)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r} (use 'process' or 'ray')")
+    out = Path(out_dir).resolve()  # workers may start in another folder
 
     def needs_work(n: str, v: int) -> bool:
         record = load_view(out, n, v, seed)
-        return record is None or (options is not None and bool(pending_grasps(record, options)))
+        return record is None or (grasps is not None and bool(pending_grasps(record, grasps)))
 
-    todo = [(n, v, s, str(out), seed, options) for n, v, s in views if needs_work(n, v)]
-    workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    if todo:
-        from tqdm import tqdm
+    todo = [(n, v, s, str(out), seed, grasps) for n, v, s in views if needs_work(n, v)]
+    if not todo:
+        return 0
+    from tqdm import tqdm
 
-        bar = tqdm(total=len(todo), desc="evaluate", unit="view", disable=not progress)
+    bar = tqdm(total=len(todo), desc="evaluate", unit="view", disable=not progress)
+    try:
+        if backend == "ray":
+            import ray
+
+            ray_init(workers)
+            remote = ray.remote(_run_ray_task)
+            weights = None if weights is None else str(Path(weights).resolve())
+            pending = [remote.remote(t, weights) for t in todo]
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                ray.get(done[0])  # raises a task's error here
+                bar.update()
+            return len(todo)
+        workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
+        threads = max(1, (os.cpu_count() or 1) // workers)
         if workers == 1:
             _init_worker(weights, threads)
             try:
@@ -522,239 +411,144 @@ def evaluate(out_dir: str | Path, n_per_set: int = 50, seed: int = 0, weights=No
             with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(weights, threads)) as pool:
                 for _ in pool.imap_unordered(_run_one, todo):
                     bar.update()
+        return len(todo)
+    finally:
         bar.close()
-    records = [load_view(out, n, v, seed) for n, v, _ in views]
+
+
+def write_tables(out_dir, views: list[tuple[str, int, str]], seed: int, n_per_set: int | None = None) -> dict:
+    """Tabulate the records of ``views``: ``rows.csv``, ``grasp_rows.csv`` (when any view has
+    grasp entries), ``tables.md`` and ``tables.csv``. Returns ``{"rows", "summary", "grasp_rows",
+    "grasp_summary", "tables_md"}`` (:func:`tables.summarize`, :func:`tables.summarize_grasps`)."""
+    out = Path(out_dir)
+    records = [record for n, v, _ in views if (record := load_view(out, n, v, seed)) is not None]
     rows = [r for rec in records for r in rec["rows"]]
-    _write_csv(out / "rows.csv", ROW_FIELDS, rows)
+    atomic_write(out / "rows.csv", csv_text(ROW_FIELDS, rows))
     summary = summarize(rows)
     g_rows = load_grasp_rows(out, records)
     g_summary = summarize_grasps(records, g_rows)
-    if g_rows or any(rec["grasps"] for rec in records):
-        _write_csv(out / "grasp_rows.csv", GRASP_ROW_FIELDS, g_rows)
-    md = tables_markdown(summary, n_per_set=n_per_set, seed=seed) + kind_table_markdown(rows)
+    md = completion_tables_markdown(summary, n_per_set=n_per_set, seed=seed) + kind_table_markdown(rows)
     if g_summary:
+        atomic_write(out / "grasp_rows.csv", csv_text(GRASP_ROW_FIELDS, g_rows))
         md += grasp_tables_markdown(g_summary)
-    (out / "tables.md").write_text(md)
+    atomic_write(out / "tables.md", md)
     write_tables_csv(summary, out / "tables.csv", g_summary)
-    return {"computed": len(todo), "skipped": len(views) - len(todo), "rows": rows, "summary": summary,
-            "grasp_rows": g_rows, "grasp_summary": g_summary, "tables_md": md, "seconds": time.perf_counter() - t0}
+    return {"rows": rows, "summary": summary, "grasp_rows": g_rows, "grasp_summary": g_summary, "tables_md": md}
 
 
-def _write_csv(path: Path, fields: tuple[str, ...], rows: list[dict]) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
+def evaluate(out_dir: str | Path, *, n_per_set: int = 50, seed: int = 0, weights=None, workers: int | None = None,
+             backend: str = "process", progress: bool = True, grasps: GraspOptions | bool | None = None,
+             views: str = "paper") -> dict:
+    """Run the test set (resumable), then write ``rows.csv``, ``tables.md`` and ``tables.csv``
+    (and with ``grasps``, ``grasp_rows.csv`` and Tables IV/V).
+
+    ``views``: ``paper`` (the paper's three view sets) or ``tabletop`` (:mod:`.viewsets`), ``n_per_set``
+    of each. ``grasps``: True or a :class:`GraspOptions` adds the grasp stage; finished completions
+    are read from ``meshes/``, never recomputed. ``backend`` and ``workers``: see :func:`run_views`.
+    Returns ``{"computed", "skipped", "rows", "summary", "grasp_rows", "grasp_summary",
+    "tables_md", "seconds"}`` (:func:`write_tables`); ``computed`` counts views with any work done.
+    """
+    options = GraspOptions() if grasps is True else (grasps or None)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sample = sample_views(n_per_set, seed, views)
+    upgrade_old_views(out, sample, seed)
+    computed = run_views(out, sample, seed=seed, weights=weights, workers=workers, backend=backend, grasps=options,
+                         progress=progress)
+    return {"computed": computed, "skipped": len(sample) - computed, **write_tables(out, sample, seed, n_per_set),
+            "seconds": time.perf_counter() - t0}
 
 
 # ----------------------------------------------------------------------------------------------
-# Tables
+# The sample store: a few views for a first look in the Dataset tab (``python app.py`` without --results)
+
+# Household YCB objects of both model splits and a pybullet toy, views from all three evaluation
+# sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
+SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
+    ("ycb/021_bleach_cleanser", 0), ("ycb/021_bleach_cleanser", 120),
+    ("ycb/006_mustard_bottle", 100), ("ycb/006_mustard_bottle", 420),
+    ("ycb/025_mug", 180), ("ycb/025_mug", 0),
+    ("ycb/035_power_drill", 300),
+    ("pybullet/duck", 0),
+    ("ycb/025_mug", 10_003), ("household/spray_bottle_004", 10_001), ("household/bowl_003", 10_002),
+)
+SAMPLE_VERSION = 2
+SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
 
 
-def summarize(rows: list[dict]) -> dict:
-    """Means per view set and method over the rows without error."""
-    out: dict = {}
-    for s in VIEW_SETS:
-        out[s] = {}
-        for m in METHODS:
-            sel = [r for r in rows if r["view_set"] == s and r["method"] == m]
-            ok = [r for r in sel if not r["error"]]
-            cell = {k: (float(np.mean([r[k] for r in ok])) if ok else math.nan) for k in (*METRICS, "seconds")}
-            cell.update(n=len(ok), failed=len(sel) - len(ok))
-            out[s][m] = cell
-    return out
+def sample_grasp_options() -> GraspOptions:
+    """Grasps of the sample store: 5 Barrett grasps per completion from a smaller (still
+    deterministic) search than the evaluation's, about 5 s per view and method on 2 cores."""
+    from ..grasp.plan import PlanSettings
+
+    return GraspOptions(n_grasps=5, settings=PlanSettings(samples=256, chains=16, steps=100, simulate=15))
 
 
-def _nanmean(values) -> float:
-    vals = [float(v) for v in values if not math.isnan(float(v))]
-    return float(np.mean(vals)) if vals else math.nan
+def sample_store_dir(weights: str | Path | None = None) -> Path:
+    """Where the sample store of the given CNN weights lives (under :func:`catalogue.cache_dir`).
 
-
-def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
-    """``{hand: {view_set or "all": {method: cell}}}`` over every grasp entry of the records.
-
-    A cell pools the grasps of its views: ``GRASP_MEANS`` means over grasps, medians of the joint
-    and pose errors (``joint_error_deg_median``, ``pose_error_mm_median``), ``grasps`` (their
-    number), ``lift_success_best`` (mean over views of the best grasp's lift, 0 for a view
-    without grasps), ``views`` (entries without error), ``no_grasp`` (of those, views where the
-    planner found none), ``failed`` (entries with an error) and ``seconds_plan`` (mean per view).
+    The folder name holds a hash of the weights file, so new weights get a new sample store.
     """
-    hands = sorted({g["hand"] for rec in records for g in rec.get("grasps", [])})
-    out: dict = {}
-    for hand in hands:
-        out[hand] = {}
-        for s in (*VIEW_SETS, "all"):
-            out[hand][s] = {}
-            for m in METHODS:
-                entries = [g for rec in records if s in ("all", rec["view_set"]) for g in rec["grasps"]
-                           if g["hand"] == hand and g["method"] == m]
-                if not entries:
-                    continue
-                ok = [g for g in entries if not g["error"]]
-                sel = [r for r in rows if r["hand"] == hand and r["method"] == m and s in ("all", r["view_set"])]
-                cell = {k: _nanmean(r[k] for r in sel) if k not in ("force_closure_planned", "force_closure_executed")
-                        else _nanmean(float(r[k.replace("force_closure", "epsilon")] > 0) for r in sel)
-                        for k in GRASP_MEANS}
-                # Medians too: a few grasps whose fingers meet the true object far ahead of the
-                # completion stop 50-150 mm early and dominate the means.
-                for k in ("joint_error_deg", "pose_error_mm"):
-                    vals = [r[k] for r in sel if not math.isnan(r[k])]
-                    cell[f"{k}_median"] = float(np.median(vals)) if vals else math.nan
-                cell.update(grasps=len(sel), views=len(ok), failed=len(entries) - len(ok),
-                            no_grasp=sum(1 for g in ok if g["n"] == 0),
-                            lift_success_best=_nanmean(g["lift_success_best"] for g in ok),
-                            seconds_plan=_nanmean(g["seconds_plan"] for g in ok))
-                out[hand][s][m] = cell
-    return out
+    from ..model import DEFAULT_WEIGHTS
+
+    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+    tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
+    return catalogue.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
 
 
-def _fmt(v: float, metric: str) -> str:
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return "–"
-    return f"{v:.1f}" if metric.startswith("hausdorff") else f"{v:.3f}"
+def sample_store_complete(root: str | Path) -> bool:
+    return (Path(root) / SAMPLE_DONE).is_file()
 
 
-def tables_markdown(summary: dict, n_per_set: int | None = None, seed: int | None = None) -> str:
-    lines = ["# Completion results (paper Tables I–III)", ""]
-    if n_per_set is not None:
-        lines += [f"{n_per_set} views per set, seed {seed}. Our means, then the paper's figures (theirs, on their data, "
-                  "SPEC §7; the paper has one \"Ours\"). Means over views where the method succeeded; "
-                  "n = successes/views.", ""]
-    sets = [s for s in VIEW_SETS if any(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS)]
-    for number, metric, title in TABLES:
-        lines += [f"## Table {number}: {title}", "",
-                  "| View set | " + " | ".join(METHODS) + " | paper Partial | paper Mirror | paper Ours |",
-                  "|---" * (len(METHODS) + 4) + "|"]
-        for s in sets:
-            cells = [f"{_fmt(summary[s][m][metric], metric)} (n={summary[s][m]['n']}/"
-                     f"{summary[s][m]['n'] + summary[s][m]['failed']})" for m in METHODS]
-            paper = [_fmt(paper_figure(metric, s, m), metric) for m in ("Partial", "Mirror", "Ours-detailed")]
-            lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
-        lines.append("")
-    lines += ["## Mean completion time, seconds (all view sets)", "", "| " + " | ".join(METHODS) + " |",
-              "|---" * len(METHODS) + "|"]
-    times = []
-    for m in METHODS:
-        vals = [(summary[s][m]["seconds"], summary[s][m]["n"]) for s in sets if summary[s][m]["n"]]
-        n = sum(c for _, c in vals)
-        times.append(f"{sum(v * c for v, c in vals) / n:.2f}" if n else "–")
-    lines += ["| " + " | ".join(times) + " |", "",
-              "Other metrics (Hausdorff max and RMS) are in rows.csv and tables.csv.", ""]
-    return "\n".join(lines)
+def build_sample_store(root: str | Path, *, views: Iterable[tuple[str, int]] = SAMPLE_VIEWS, weights=None,
+                       seed: int = 0, progress: Callable[[int, int, str], None] | None = None,
+                       completer=None, grasps: GraspOptions | bool | None = True):
+    """Evaluate ``views`` as :func:`evaluate` does into a results store (returned, a
+    :class:`~.results.ResultsStore`): first every view's completions, then (``grasps``: True for
+    :func:`sample_grasp_options`, a :class:`GraspOptions`, or None) grasps planned on each and
+    executed on the truth.
 
+    Finished work is skipped, so an interrupted build resumes. ``progress(done, total, what)`` is
+    called before each step and at the end; the store is synced after every step so that a reader
+    sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
+    """
+    from .results import ResultsStore
 
-def kind_table_markdown(rows: list[dict]) -> str:
-    """J80 and mean surface distance per view set and shape kind (:func:`catalogue.shape_kind`), so
-    that a weak family shows; empty when the rows carry no kinds."""
-    kinds = sorted({r.get("kind", "") for r in rows} - {""})
-    if not kinds:
-        return ""
-    lines = ["## Per shape kind: J80 / mean surface distance (mm)", "",
-             "| View set | kind | views | " + " | ".join(METHODS) + " |", "|---" * (len(METHODS) + 3) + "|"]
-    for s in VIEW_SETS:
-        for k in kinds:
-            sel = [r for r in rows if r["view_set"] == s and r.get("kind") == k]
-            if not sel:
-                continue
-            cells = []
-            for m in METHODS:
-                ok = [r for r in sel if r["method"] == m and not r["error"]]
-                cells.append(f"{_fmt(_nanmean(r['j80'] for r in ok), 'j80')} / "
-                             f"{_fmt(_nanmean(r['hausdorff_mean_mm'] for r in ok), 'hausdorff')}" if ok else "–")
-            lines.append(f"| {SET_TITLES[s]} | {k} | {len({(r['object'], r['view']) for r in sel})} | "
-                         + " | ".join(cells) + " |")
-    return "\n".join(lines + [""])
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    store = ResultsStore(root)
+    views = list(views)
+    options = sample_grasp_options() if grasps is True else (grasps or None)
+    total = len(views) * (2 if options is not None else 1)
+    done = 0
 
+    def step(what: str) -> None:
+        if progress is not None:
+            progress(done, total, what)
 
-def _num(v: float, digits: int = 2, scale: float = 1.0, suffix: str = "") -> str:
-    return "–" if v is None or math.isnan(v) else f"{scale * v:.{digits}f}{suffix}"
+    records = {}
+    for name, view in views:
+        record = load_view(root, name, view, seed)
+        if record is None:
+            step(f"completing {name} view {view}")
+            if completer is None:
+                from ..model import load_completer
 
+                completer = load_completer(weights)
+            record = _complete(root, name, view, view_set_of(name, view), seed, completer)
+            store.sync()
+        records[(name, view)] = record
+        done += 1
+    if options is not None:
+        for name, view in views:
+            record = records[(name, view)]
+            for method in pending_grasps(record, options):
+                step(f"grasping {name} view {view} ({method})")
+                _grasp(root, record, method, options)
+                store.sync()
+            done += 1
+    atomic_write(root / SAMPLE_DONE, json.dumps({"views": views, "grasps": options is not None}))
+    step("done")
+    return store
 
-def _paper_grasp(quantity: str, view_set: str, method: str) -> float:
-    col = PAPER_COLUMN.get(method, -1)
-    row = PAPER_GRASP[quantity].get(view_set)
-    return math.nan if row is None or col < 0 else row[col]
-
-
-def grasp_tables_markdown(g_summary: dict) -> str:
-    """Table IV (joint and pose error) and the simulated analogue of Table V (lift success) for
-    each hand in ``g_summary`` (see :func:`summarize_grasps`), with the paper's figures."""
-    lines = []
-    for hand, by_set in g_summary.items():
-        methods = [m for m in METHODS if any(m in by_set[s] for s in VIEW_SETS)]
-        paper_methods = ("Partial", "Mirror", "Ours-detailed")
-        lines += [f"# Grasp results (paper Tables IV and V), {hand} hand", "",
-                  "Grasps planned on each completion (the paper's views: no table, the object floating as rendered; "
-                  "tabletop views: on the table the segmentation found, in its frame), every planned grasp "
-                  "executed on the true mesh with the paper's protocol (SPEC §8) and lifted in simulation. Means "
-                  "over all executed grasps of the view set, shown as mean / median (the paper reports means); n = grasps "
-                  "(views without a grasp: see the quality table). Paper figures: theirs, on their data; their \"Ours\" beside our Ours-detailed; SPEC §8 "
-                  "has no holdout-view row for Table IV.", ""]
-        for number, key, title, digits in (("IV", "joint_error_deg", "joint error, degrees (lower is better)", 2),
-                                           ("IV", "pose_error_mm", "palm pose error, mm (lower is better)", 1)):
-            lines += [f"## Table {number}: {title}", "",
-                      "| View set | " + " | ".join(methods) + " | paper Partial | paper Mirror | paper Ours |",
-                      "|---" * (len(methods) + 4) + "|"]
-            for s in (s for s in VIEW_SETS if by_set[s]):
-                cells = [f"{_num(c[key], digits)} / {_num(c[key + '_median'], digits)} (n={c['grasps']})"
-                         if (c := by_set[s].get(m)) else "–" for m in methods]
-                paper = [_num(_paper_grasp(key, s, m), digits) for m in paper_methods]
-                lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
-            lines.append("")
-        lines += ["## Table V analogue: simulated lift success, all grasps / best grasp per view (higher is better)",
-                  "", "| View set | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
-        for s in (*(s for s in VIEW_SETS if by_set[s]), "all"):
-            cells = [f"{_num(c['lift_success'], 1, 100, '%')} / {_num(c['lift_success_best'], 1, 100, '%')} "
-                     f"(n={c['grasps']}/{c['views']})" if (c := by_set[s].get(m)) else "–" for m in methods]
-            lines.append(f"| {SET_TITLES.get(s, 'All views')} | " + " | ".join(cells) + " |")
-        paper = {m: PAPER_LIFT[PAPER_COLUMN[m]] if PAPER_COLUMN[m] >= 0 else math.nan for m in methods}
-        lines += ["| paper, real robot (15 objects) | " + " | ".join(_num(paper[m], 1, 100, "%") for m in methods)
-                  + " |", "",
-                  "Best grasp: the planner's top-ranked grasp of each view (what a robot would execute; a view "
-                  "without any grasp counts as a failure), n = grasps/views. The paper's figures are real-robot "
-                  "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table).", "",
-                  "## Grasp quality and planning (all views)", "",
-                  "| Method | epsilon planned | epsilon executed | force closure planned | force closure executed "
-                  "| start clear | views without grasp | failed | plan s/view |", "|---" * 9 + "|"]
-        for m in methods:
-            c = by_set["all"][m]
-            lines.append(f"| {m} | {_num(c['epsilon_planned'], 3)} | {_num(c['epsilon_executed'], 3)} | "
-                         f"{_num(c['force_closure_planned'], 1, 100, '%')} | "
-                         f"{_num(c['force_closure_executed'], 1, 100, '%')} | {_num(c['start_clear'], 1, 100, '%')} | "
-                         f"{c['no_grasp']}/{c['views']} | {c['failed']} | {_num(c['seconds_plan'], 1)} |")
-        lines += ["", "Per-grasp values are in grasp_rows.csv, per-view means in views/*.json.", ""]
-    return "\n".join(lines)
-
-
-CSV_FIELDS = ("table", "view_set", "method", "n", "failed", *METRICS, "seconds",
-              "paper_jaccard", "paper_hausdorff_mean_mm", "paper_geodesic",
-              "hand", "grasps", "no_grasp", *GRASP_MEANS, "joint_error_deg_median", "pose_error_mm_median",
-              "lift_success_best", "seconds_plan",
-              "paper_joint_error_deg", "paper_pose_error_mm", "paper_lift_success")
-
-
-def write_tables_csv(summary: dict, path: Path, g_summary: dict | None = None) -> None:
-    """Every table cell as a CSV row: completion cells (``table`` "I-III") and, with
-    ``g_summary``, grasp cells (``table`` "IV-V", view set "all" too; ``n`` = views, ``failed`` =
-    views whose grasp stage failed). Cells a row does not have are blank."""
-    rows = []
-    for s in VIEW_SETS:
-        for m in METHODS:
-            c = summary[s][m]
-            if not c["n"] + c["failed"]:
-                continue
-            rows.append({"table": "I-III", "view_set": s, "method": m, "n": c["n"], "failed": c["failed"],
-                         **{k: c[k] for k in (*METRICS, "seconds")},
-                         **{f"paper_{k}": paper_figure(k, s, m) for k in ("jaccard", "hausdorff_mean_mm", "geodesic")}})
-    for hand, by_set in (g_summary or {}).items():
-        for s, cells in by_set.items():
-            for m, c in cells.items():
-                col = PAPER_COLUMN[m]
-                rows.append({"table": "IV-V", "view_set": s, "method": m, "n": c["views"], "failed": c["failed"],
-                             "hand": hand, **{k: c[k] for k in ("grasps", "no_grasp", *GRASP_MEANS,
-                                                                "joint_error_deg_median", "pose_error_mm_median",
-                                                                "lift_success_best", "seconds_plan")},
-                             "paper_joint_error_deg": _paper_grasp("joint_error_deg", s, m),
-                             "paper_pose_error_mm": _paper_grasp("pose_error_mm", s, m),
-                             "paper_lift_success": PAPER_LIFT[col] if col >= 0 and s == "all" else math.nan})
-    _write_csv(path, CSV_FIELDS, rows)

@@ -130,7 +130,8 @@ def render_view(name: str, view: int, view_set: str, seed: int = 0) -> EvalView:
             raise ValueError(f"tabletop view {view} of {name}: the object was hidden or not segmented")
         return EvalView(v.points_cam, v.truth_cam(), v.plane_cam, v.sensor)
     from ..camera import Intrinsics, KinectNoise, RaycastRenderer
-    from ..generate import noise_seed, object_mesh, render_view as render_object, view_pose
+    from ..generate import noise_seed, object_mesh, view_pose
+    from ..generate import render_view as render_object
 
     mesh = object_mesh(name)
     T = view_pose(name, view, seed)

@@ -5,7 +5,11 @@
 - :mod:`shapeviewer.grasp.world`: :class:`~shapeviewer.grasp.world.GraspWorld`, a pybullet DIRECT
   world with a table, objects and a free-floating hand moved kinematically (approach, close).
 - :mod:`shapeviewer.grasp.quality`: GraspIt's epsilon (Ferrari-Canny) and volume qualities.
-- :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan_grasps`).
+- :mod:`shapeviewer.grasp.state`: what a grasp is (palm pose, dofs, joints, contacts, qualities).
+- :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan_grasps`):
+  a cheap search (:mod:`~shapeviewer.grasp.search`, on the hand's precomputed
+  :mod:`~shapeviewer.grasp.samples` and the object's :mod:`~shapeviewer.grasp.object_field`), then
+  the best candidates executed in the pybullet world.
 - :mod:`shapeviewer.grasp.execute`: the paper's execution on the true object, joint and pose
   errors, and a dynamic lift test.
 - :mod:`shapeviewer.grasp.serialize`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.

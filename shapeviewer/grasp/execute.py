@@ -20,15 +20,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Sequence
 
 import numpy as np
 import pybullet as p
 import trimesh
 
+from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import Hand, get_hand, set_joint_positions
-from shapeviewer.grasp.plan import BACK_OFF, Grasp, GraspContact, approach_and_close, object_contacts
+from shapeviewer.grasp.plan import BACK_OFF, approach_and_close, object_contacts
 from shapeviewer.grasp.quality import max_radius
+from shapeviewer.grasp.state import Grasp, HandState
 from shapeviewer.grasp.world import GraspWorld
 
 # Lift test timing (s) at pybullet's default 240 Hz step.
@@ -61,25 +63,17 @@ class LiftResult:
 
 
 @dataclass(eq=False)
-class ExecutionResult:
-    """A grasp executed on the true object.
+class ExecutionResult(HandState):
+    """A grasp executed on the true object: its executed state (see :class:`HandState`; qualities
+    with the true object's centre of mass and radius) and how it went.
 
-    ``T_world_palm``/``dofs``/``joints``/``contacts``/``epsilon``/``volume``: as in
-    :class:`~shapeviewer.grasp.plan.Grasp`, for the executed state (qualities with the true
-    object's centre of mass and radius). ``joint_error``: mean absolute difference of planned and
-    executed finger joints (every joint a closing dof moves; degrees, or millimetres for prismatic
-    fingers). ``pose_error``: distance between planned and executed palm positions (mm).
-    ``start_clear``: the backed-off start was free of collisions; ``approach_contact``: the
-    approach stopped at contact (rather than at its full 200 mm). ``lift``: the lift test, if run.
+    ``joint_error``: mean absolute difference of planned and executed finger joints (every joint a
+    closing dof moves; degrees, or millimetres for prismatic fingers). ``pose_error``: distance
+    between planned and executed palm positions (mm). ``start_clear``: the backed-off start was
+    free of collisions; ``approach_contact``: the approach stopped at contact (rather than at its
+    full 200 mm). ``lift``: the lift test, if run.
     """
 
-    hand: str
-    T_world_palm: np.ndarray
-    dofs: dict[str, float]
-    joints: dict[str, float]
-    contacts: tuple[GraspContact, ...]
-    epsilon: float
-    volume: float
     joint_error: float
     pose_error: float
     start_clear: bool
@@ -87,40 +81,17 @@ class ExecutionResult:
     lift: LiftResult | None = None
     frame: str = "world"
 
-    @property
-    def force_closure(self) -> bool:
-        return self.epsilon > 0.0
-
-
-class HandState(Protocol):
-    """Anything with a hand, a palm pose (world frame) and joint values: a planned
-    :class:`Grasp` or an :class:`ExecutionResult`."""
-
-    hand: str
-    T_world_palm: np.ndarray
-    joints: dict[str, float]
-
-
-def _finger_joints(hand: Hand) -> list[int]:
-    """Indices (``hand.joint_names``) of the joints that closing moves (not the spread)."""
-    closing = {i for i in range(len(hand.dof_names)) if hand.dof_open[i] != hand.dof_closed[i]}
-    return [k for k, c in enumerate(hand.coupling) if c.dof in closing]
-
 
 def joint_error(hand: Hand, planned: dict[str, float], executed: dict[str, float]) -> float:
     """Mean absolute difference of the finger joints: degrees for revolute, mm for prismatic."""
     by_name = {j.name: j for j in hand.model.joints}
     diffs = []
-    for k in _finger_joints(hand):
-        name = hand.joint_names[k]
+    for name, finger in zip(hand.joint_names, hand.closing_joints):
+        if not finger:
+            continue
         scale = 1000.0 if by_name[name].kind == "prismatic" else 180.0 / math.pi
         diffs.append(scale * abs(planned[name] - executed[name]))
     return float(np.mean(diffs))
-
-
-def _object_frame(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float]:
-    com = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, float)
-    return com, max_radius(mesh.vertices, com)
 
 
 def execute_grasps(grasps: Sequence[Grasp], true_mesh_world: trimesh.Trimesh, *, table: bool = True,
@@ -129,7 +100,8 @@ def execute_grasps(grasps: Sequence[Grasp], true_mesh_world: trimesh.Trimesh, *,
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
     executed state."""
     results: list[ExecutionResult | None] = [None] * len(grasps)
-    com, radius = _object_frame(true_mesh_world)
+    com = centre_of_mass(true_mesh_world)
+    radius = max_radius(true_mesh_world.vertices, com)
     for hand_name in dict.fromkeys(g.hand for g in grasps):
         hand = get_hand(hand_name)
         with GraspWorld(hand, table=table) as world:
@@ -192,10 +164,10 @@ def lift_test(state: HandState, true_mesh_world: trimesh.Trimesh, *, table: bool
         p.changeConstraint(cid, start_pos, orn, maxForce=HOLD_FORCE, physicsClientId=c)
 
         # Fingers squeeze towards fully closed with their URDF efforts; preshape joints hold.
-        fingers = set(_finger_joints(hand))
+        fingers = hand.closing_joints
         closed = hand.joints_from_dofs(hand.dof_closed)
-        target = [float(closed[k]) if k in fingers else state.joints[n] for k, n in enumerate(hand.joint_names)]
-        forces = [p.getJointInfo(hb.body, j, physicsClientId=c)[10] if k in fingers else SPREAD_FORCE
+        target = [float(closed[k]) if fingers[k] else state.joints[n] for k, n in enumerate(hand.joint_names)]
+        forces = [p.getJointInfo(hb.body, j, physicsClientId=c)[10] if fingers[k] else SPREAD_FORCE
                   for k, j in enumerate(hb.joint_index)]
         p.setJointMotorControlArray(hb.body, list(hb.joint_index), p.POSITION_CONTROL,
                                     targetPositions=target, forces=forces, physicsClientId=c)

@@ -27,6 +27,8 @@ import pybullet as p
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from shapeviewer.geometry import pose_to_pq, pq_to_pose
+
 HANDS_DIR = Path(__file__).resolve().parents[2] / "static_assets" / "hands"
 HAND_NAMES = ("barrett", "panda")
 
@@ -280,6 +282,18 @@ class Hand:
         return (np.array([by_name[n].lower for n in self.joint_names]),
                 np.array([by_name[n].upper for n in self.joint_names]))
 
+    @property
+    def closing_dofs(self) -> np.ndarray:
+        """Bool mask over ``dof_names``: the dofs that closing moves (open and closed differ); the
+        others, like the Barrett spread, are the preshape."""
+        return np.not_equal(self.dof_open, self.dof_closed)
+
+    @property
+    def closing_joints(self) -> np.ndarray:
+        """Bool mask over ``joint_names``: the joints that a closing dof drives (the fingers)."""
+        closing = self.closing_dofs
+        return np.array([bool(closing[c.dof]) for c in self.coupling])
+
     def clip_dofs(self, dofs: Sequence[float]) -> np.ndarray:
         return np.clip(np.asarray(dofs, float), self.dof_lower, self.dof_upper)
 
@@ -434,43 +448,6 @@ def hand_mesh(hand: Hand, joints: Sequence[float]) -> trimesh.Trimesh:
 
 # ---------------------------------------------------------------------------------------------
 # pybullet.
-
-def pose_to_pq(T: np.ndarray) -> tuple[list[float], list[float]]:
-    """Position and pybullet quaternion (x, y, z, w, with w >= 0) of a 4x4 pose.
-
-    Shepperd's method in plain Python: these conversions run on every pose set or read in the
-    world, where scipy's Rotation would cost about a millisecond each.
-    """
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(T, float)[:3, :3].tolist()
-    trace = m00 + m11 + m22
-    if trace > max(m00, m11, m22):
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = [(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, s / 4]
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 1e-300))
-        q = [s / 4, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s]
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(max(1.0 + m11 - m00 - m22, 1e-300))
-        q = [(m01 + m10) / s, s / 4, (m12 + m21) / s, (m02 - m20) / s]
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + m22 - m00 - m11, 1e-300))
-        q = [(m02 + m20) / s, (m12 + m21) / s, s / 4, (m10 - m01) / s]
-    norm = math.copysign(math.sqrt(sum(c * c for c in q)), q[3] if q[3] != 0.0 else 1.0)
-    return [float(v) for v in np.asarray(T, float)[:3, 3]], [c / norm for c in q]
-
-
-def pq_to_pose(pos: Sequence[float], quat: Sequence[float]) -> np.ndarray:
-    """4x4 pose from a position and pybullet quaternion (x, y, z, w)."""
-    x, y, z, w = quat
-    n = x * x + y * y + z * z + w * w
-    s = 2.0 / n if n > 0 else 0.0
-    return np.array([
-        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), pos[0]],
-        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w), pos[1]],
-        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y), pos[2]],
-        [0.0, 0.0, 0.0, 1.0],
-    ], dtype=float)
-
 
 def _T_link_inertial(client: int, body: int) -> np.ndarray:
     info = p.getDynamicsInfo(body, -1, physicsClientId=client)

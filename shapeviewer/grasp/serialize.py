@@ -24,7 +24,6 @@ from __future__ import annotations
 import io
 import json
 import logging
-import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,9 +32,12 @@ from typing import Sequence
 import numpy as np
 import trimesh
 
+from shapeviewer.fileio import atomic_write
+from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.execute import ExecutionResult, LiftResult
-from shapeviewer.grasp.hands import get_hand, pose_to_pq
-from shapeviewer.grasp.plan import Grasp, GraspContact, ProgressFn, plan_grasps
+from shapeviewer.grasp.hands import get_hand
+from shapeviewer.grasp.plan import ProgressFn, plan_grasps
+from shapeviewer.grasp.state import Grasp, GraspContact, HandState
 from shapeviewer.grasp.world import convex_decomposition
 
 log = logging.getLogger(__name__)
@@ -66,17 +68,15 @@ def _contacts_from_list(items: list[dict]) -> tuple[GraspContact, ...]:
     return tuple(GraspContact(c["link"], np.array(c["position"], float), np.array(c["normal"], float)) for c in items)
 
 
-def _state_to_dict(hand: str, T: np.ndarray, dofs: dict, joints: dict, contacts: Sequence[GraspContact],
-                   epsilon: float, volume: float) -> dict:
-    position, quaternion = pose_to_pq(T)
+def _state_to_dict(state: HandState) -> dict:
     return {
-        "hand": hand, "frame": "world",
-        "T_world_palm": _floats(T), "position": position, "quaternion_xyzw": quaternion,
-        "approach": _floats(np.asarray(T)[:3, :3] @ np.asarray(get_hand(hand).approach, float)),
-        "dof_names": list(dofs), "dof_values": [float(v) for v in dofs.values()],
-        "joint_names": list(joints), "joint_values": [float(v) for v in joints.values()],
-        "contacts": _contacts_to_list(contacts),
-        "epsilon": float(epsilon), "volume": float(volume), "force_closure": bool(epsilon > 0.0),
+        "hand": state.hand, "frame": "world",
+        "T_world_palm": _floats(state.T_world_palm), "position": _floats(state.position),
+        "quaternion_xyzw": _floats(state.quaternion_xyzw), "approach": _floats(state.approach),
+        "dof_names": list(state.dofs), "dof_values": [float(v) for v in state.dofs.values()],
+        "joint_names": list(state.joints), "joint_values": [float(v) for v in state.joints.values()],
+        "contacts": _contacts_to_list(state.contacts),
+        "epsilon": float(state.epsilon), "volume": float(state.volume), "force_closure": bool(state.force_closure),
     }
 
 
@@ -86,13 +86,11 @@ def _named(d: dict, names: str, values: str) -> dict[str, float]:
 
 def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dict:
     """One grasp (and its execution, if any) as a JSON-ready dict."""
-    d = _state_to_dict(grasp.hand, grasp.T_world_palm, grasp.dofs, grasp.joints, grasp.contacts, grasp.epsilon,
-                       grasp.volume)
+    d = _state_to_dict(grasp)
     d["energy"] = float(grasp.energy)
     d["execution"] = None
     if execution is not None:
-        e = _state_to_dict(execution.hand, execution.T_world_palm, execution.dofs, execution.joints,
-                           execution.contacts, execution.epsilon, execution.volume)
+        e = _state_to_dict(execution)
         e.update(joint_error=float(execution.joint_error), pose_error=float(execution.pose_error),
                  start_clear=bool(execution.start_clear), approach_contact=bool(execution.approach_contact),
                  lift=None if execution.lift is None else {
@@ -167,7 +165,7 @@ grasps.json           the grasps (palm pose, joint values, contacts, qualities; 
 
 
 def _object_urdf(mesh: trimesh.Trimesh, mass: float) -> str:
-    com = mesh.center_mass if mesh.is_watertight else mesh.centroid
+    com = centre_of_mass(mesh)
     if mesh.is_watertight and mesh.volume > 0:
         inertia = mesh.moment_inertia * (mass / mesh.mass)  # about the centre of mass, world axes
     else:
@@ -244,9 +242,7 @@ def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "bar
     meta = {"source": str(mesh_path), "T_world_mesh": _floats(T), "hand": hand, "seed": seed}
     out_path = Path(out_path)
     data = scene_zip(mesh, grasps, meta=meta) if out_path.suffix == ".zip" else grasps_to_json(grasps, meta=meta).encode()
-    tmp = out_path.with_name(out_path.name + ".tmp")
-    tmp.write_bytes(data)  # then renamed: a failed or interrupted run leaves no half-written file
-    os.replace(tmp, out_path)
+    atomic_write(out_path, data)  # a failed or interrupted run leaves no half-written file
     return grasps
 
 

@@ -30,6 +30,7 @@ import numpy as np
 import pybullet as p
 import trimesh
 
+from shapeviewer.geometry import centre_of_mass
 from shapeviewer.sim.catalogue import cache_dir
 from shapeviewer.grasp.hands import (
     Hand, HandBody, get_base_pose, load_hand, palm_pose, set_base_pose, set_joint_positions, set_joints,
@@ -313,8 +314,7 @@ class GraspWorld:
                                            indices=np.asarray(mesh.faces, int).ravel().tolist(),
                                            flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.client)
         if movable:
-            com = mesh.center_mass if mesh.is_watertight else mesh.centroid
-            body = p.createMultiBody(mass, shape, baseInertialFramePosition=list(map(float, com)),
+            body = p.createMultiBody(mass, shape, baseInertialFramePosition=centre_of_mass(mesh).tolist(),
                                      physicsClientId=self.client)
         else:
             body = p.createMultiBody(0.0, shape, physicsClientId=self.client)
@@ -352,10 +352,7 @@ class GraspWorld:
     def open_hand(self) -> None:
         """Open every finger, keeping the current spread (a preshape, not a closing dof)."""
         hand = self.hand.hand
-        dofs = np.array(hand.dof_open, float)
-        closing = np.array(hand.dof_open) != np.array(hand.dof_closed)
-        dofs[~closing] = self.hand.dofs[~closing]
-        set_joints(self.hand, dofs)
+        set_joints(self.hand, np.where(hand.closing_dofs, hand.dof_open, self.hand.dofs))
 
     def move_along_approach(self, distance: float) -> None:
         """Translate the palm by ``distance`` (m) along its approach axis (negative: back off)."""

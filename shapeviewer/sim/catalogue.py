@@ -12,6 +12,7 @@ Processed meshes are cached under :func:`cache_dir` so that later runs load them
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 import os
@@ -22,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
+from ..fileio import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -255,10 +258,9 @@ def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
 
 
 def _save_mesh(cp: Path, mesh: trimesh.Trimesh) -> None:
-    cp.parent.mkdir(parents=True, exist_ok=True)
-    tmp = cp.with_suffix(".tmp.npz")
-    np.savez(tmp, vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32))
-    os.replace(tmp, cp)
+    buf = io.BytesIO()
+    np.savez(buf, vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32))
+    atomic_write(cp, buf.getvalue())
 
 
 SHIPPED_INDEX = Path(__file__).resolve().parent.parent / "static_assets" / "catalogue.json"

@@ -21,7 +21,9 @@ from pybullet_utils.bullet_client import BulletClient
 
 from ..camera import Intrinsics, KinectNoise, RaycastRenderer, backproject, look_at, transform_points
 from ..capture import Capture, SceneObject
+from ..geometry import pose_to_pq
 from .catalogue import catalogue, load_mesh
+from ..grasp.hands import get_base_pose
 from ..grasp.world import convex_decomposition
 
 # YCB objects that look like a tabletop and stand (or lie) stably; the bowl, mugs and cups are
@@ -127,7 +129,8 @@ def build_tabletop(seed: int = 0, n_objects: int | None = None) -> list[SceneObj
             starts = sample_layout(rng, meshes)
             bodies = [_add_body(client, s, m, T) for s, m, T in zip(shapes, meshes, starts)]
             if _settle(client, bodies) and _well_placed(client, bodies):
-                return [SceneObject(n, m, _body_pose(client, b)) for n, m, b in zip(names, meshes, bodies)]
+                # BulletClient keeps its physics client id private; the pose helper takes the id.
+                return [SceneObject(n, m, get_base_pose(client._client, b)) for n, m, b in zip(names, meshes, bodies)]
             for b in bodies:
                 client.removeBody(b)
     finally:
@@ -203,39 +206,15 @@ def _add_body(client: BulletClient, shape: int, mesh: trimesh.Trimesh, T_world_o
     """A dynamic body whose link frame is the mesh frame, placed at ``T_world_obj``.
 
     The inertial frame sits at the mesh's centre of mass so that it tips and rests like the real
-    object; :func:`_body_pose` undoes that offset.
+    object; :func:`~shapeviewer.grasp.hands.get_base_pose` reads the link frame back.
     """
+    position, quaternion = pose_to_pq(T_world_obj)
     body = client.createMultiBody(
         baseMass=DENSITY * mesh.volume, baseCollisionShapeIndex=shape,
-        basePosition=T_world_obj[:3, 3].tolist(), baseOrientation=_quaternion(T_world_obj[:3, :3]),
-        baseInertialFramePosition=mesh.center_mass.tolist())
+        basePosition=position, baseOrientation=quaternion, baseInertialFramePosition=mesh.center_mass.tolist())
     # A little rolling and spinning friction lets round objects come to rest.
     client.changeDynamics(body, -1, lateralFriction=0.8, rollingFriction=0.001, spinningFriction=0.001)
     return body
-
-
-def _body_pose(client: BulletClient, body: int) -> np.ndarray:
-    """``T_world_obj`` (4x4) of a body made by :func:`_add_body`.
-
-    pybullet reports the pose of the body's inertial (centre of mass) frame, not of its link frame:
-    T_world_obj = T_world_com @ inv(T_obj_com).
-    """
-    pos, orn = client.getBasePositionAndOrientation(body)
-    local_pos, local_orn = client.getDynamicsInfo(body, -1)[3:5]
-    return _matrix(pos, orn) @ np.linalg.inv(_matrix(local_pos, local_orn))
-
-
-def _matrix(pos, quat_xyzw) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = np.array(pybullet.getMatrixFromQuaternion(quat_xyzw)).reshape(3, 3)
-    T[:3, 3] = pos
-    return T
-
-
-def _quaternion(R: np.ndarray) -> list[float]:
-    """(x, y, z, w) quaternion of a rotation matrix (pybullet's order)."""
-    q = trimesh.transformations.quaternion_from_matrix(R)  # (w, x, y, z)
-    return [q[1], q[2], q[3], q[0]]
 
 
 def _settle(client: BulletClient, bodies: list[int], lin_tol: float = 0.005, ang_tol: float = 0.05) -> bool:

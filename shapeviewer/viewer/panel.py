@@ -1,7 +1,7 @@
 """The viewer's control panel: GUI handles only, no behaviour (the app wires the callbacks).
 
-Also the text the panel shows (markdown for the source, the model and the stage timings), built
-from plain values so that it can be tested without a server.
+Also the text the panel shows (markdown for the source, the model, the stage timings and a
+completion's confidence), built from plain values so that it can be tested without a server.
 """
 
 from __future__ import annotations
@@ -11,10 +11,14 @@ from dataclasses import dataclass
 import viser
 
 from ..export import MESH_FORMATS
+from ..pipeline import Completion
+from .state import MESH_KINDS, MESH_TITLES
+from .visuals import GUESS_SPREAD
 
 NO_SEGMENT = "(none)"
-# The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
-MESH_KINDS = ("fast", "detailed", "partial", "mirror", "hull")
+# Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
+ALGORITHM_1_STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge"),
+                     ("fill_gaps", "fill gaps"), ("smooth", "smooth"), ("marching_cubes", "marching cubes"))
 
 
 @dataclass(frozen=True)
@@ -127,8 +131,8 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
                                       hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
         export_mesh = gui.add_button("Mesh", icon=viser.Icon.DOWNLOAD, hint="The mesh chosen above")
     return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, model_folder, segment, complete,
-                 complete_all, detailed, partial, mirror, hull, timings, layers, cloud_colors, shade_output, export_frame,
-                 mesh_format, export_mesh_kind, export_points, export_grids, export_mesh)
+                 complete_all, detailed, partial, mirror, hull, timings, layers, cloud_colors, shade_output,
+                 export_frame, mesh_format, export_mesh_kind, export_points, export_grids, export_mesh)
 
 
 def source_markdown(source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float,
@@ -157,3 +161,41 @@ def timings_markdown(title: str, rows: list[tuple[str, float]]) -> str:
     """A small table of stage times (seconds) for the last completion."""
     body = "\n".join(f"| {stage} | {seconds * 1000:.1f} ms |" for stage, seconds in rows)
     return f"{title}\n\n| stage | time |\n|---|---:|\n{body}"
+
+
+def completion_timings(done: list[Completion], seg_seconds: float, send: float) -> dict[str, float]:
+    """Seconds per stage of a batch of fast completions (totals over ``done``), with the scene's
+    segmentation and the time to send the results to the browser."""
+    total = {k: sum(c.timings.get(k, 0.0) for c in done) for k in ("voxelize", "cnn", "fast_mesh")}
+    return {"segmentation": seg_seconds, "voxelize": total["voxelize"], "cnn": total["cnn"],
+            "marching_cubes": total["fast_mesh"], "send": send, "click_to_mesh": sum(total.values()) + send}
+
+
+def completion_timings_markdown(title: str, timings: dict[str, float]) -> str:
+    """The stage table of :func:`completion_timings`."""
+    rows = [("segmentation (scene)", timings["segmentation"]), ("voxelize", timings["voxelize"]),
+            ("CNN", timings["cnn"]), ("marching cubes", timings["marching_cubes"]),
+            ("send to browser", timings["send"]), ("**click → mesh**", timings["click_to_mesh"])]
+    return timings_markdown(title, rows)
+
+
+def mesh_timings_markdown(kind: str, c: Completion, send: float) -> str:
+    """The stage table of a detailed (split by Algorithm 1's steps) or baseline mesh of ``c``."""
+    seconds = c.timings[f"{kind}_mesh"]
+    title = f"Segment **{c.segment_id}**: {MESH_TITLES[kind].lower()}"
+    if kind == "detailed":
+        steps = c.timings["detailed_steps"]
+        title += f" (Algorithm 1, up-sampling r = {steps['upsample_ratio']})"
+        rows = [(label, steps[key]) for key, label in ALGORITHM_1_STEPS]
+    else:
+        rows = [(MESH_TITLES[kind], seconds)]
+    rows += [("send to browser", send), ("**total**", seconds + send)]
+    return timings_markdown(title, rows)
+
+
+def confidence_markdown(segment_id: int, spread_by_side: list[tuple[str, float]], guessed: float) -> str:
+    """The confidence of a completion: mean sample spread on each side (seen, unseen) and the share
+    of completed voxels that are a guess (see :func:`~.visuals.confidence_figures`)."""
+    return (f"Segment **{segment_id}**: confidence of the completion  \n"
+            + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)
+            + f"  \n{100 * guessed:.0f}% of the completed voxels are a guess (spread > {GUESS_SPREAD})")

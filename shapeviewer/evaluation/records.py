@@ -1,0 +1,212 @@
+"""The files of a results folder (written by ``shapeviewer evaluate``): names, view records, grasp rows.
+
+Folder layout (relative paths)::
+
+    <root>/views/<stem>.json            one record per finished view (see :func:`view_record`)
+    <root>/meshes/<stem>__truth.ply     ground-truth mesh, camera optical frame, metres
+    <root>/meshes/<stem>__points.ply    the partial view (points), camera optical frame, metres
+    <root>/meshes/<stem>__<method>.ply  each method's completion, camera optical frame, metres
+    <root>/grasps/<stem>__<method>[__<hand>].json  grasps planned on a completion (:mod:`grasp.serialize`)
+
+with ``stem`` from :func:`view_stem`. A view file is either the current format, a dict (see
+:func:`view_record`), or the first format, a bare list of completion rows whose meshes sit at the
+paths above and whose seed was not recorded. :func:`parse_view_file` reads both.
+
+A completion row has the keys :data:`ROW_FIELDS` (metrics NaN when the method failed); a grasp
+row (:func:`grasp_rows`) the keys :data:`GRASP_ROW_FIELDS`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from ..fileio import atomic_write
+from ..sim import catalogue
+
+METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
+METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
+ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error")
+# What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
+KINDS = ("truth", "points", *METHODS)
+# Per view and method, means over its grasps (the keys of a view's "grasps" entries).
+GRASP_MEANS = ("joint_error_deg", "pose_error_mm", "epsilon_planned", "volume_planned", "epsilon_executed",
+               "volume_executed", "force_closure_planned", "force_closure_executed", "start_clear", "lift_success")
+# The entry fields a results index keeps and shows (a subset of an entry's keys).
+GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
+                "force_closure_planned", "lift_success", "seconds_plan")
+GRASP_ROW_FIELDS = ("object", "view", "view_set", "method", "hand", "rank", "epsilon_planned", "volume_planned",
+                    "energy_planned", "epsilon_executed", "volume_executed", "joint_error_deg", "pose_error_mm",
+                    "start_clear", "approach_contact", "lift_success", "lift_rise_mm", "lift_slip_mm")
+
+
+def view_stem(name: str, view: int) -> str:
+    """The file-name stem of one view: ``ycb/025_mug``, 7 -> ``ycb__025_mug__007``."""
+    return f"{name.replace('/', '__')}__{int(view):03d}"
+
+
+def view_file(root: str | Path, name: str, view: int) -> Path:
+    """The record file of a view: ``<root>/views/<stem>.json``."""
+    return Path(root) / "views" / f"{view_stem(name, view)}.json"
+
+
+def grasp_file(stem: str, method: str, hand: str = "barrett") -> str:
+    """Path (relative to the results folder) of a view's grasps for one method and hand."""
+    return f"grasps/{stem}__{method}{'' if hand == 'barrett' else '__' + hand}.json"
+
+
+def mesh_files(root: str | Path, stem: str) -> dict[str, str]:
+    """Paths relative to ``root`` of the view's meshes that exist: ``truth``, ``points`` and each
+    method's completion (all camera frame, metres)."""
+    found = {}
+    for key in KINDS:
+        rel = f"meshes/{stem}__{key}.ply"
+        if (Path(root) / rel).is_file():
+            found[key] = rel
+    return found
+
+
+def view_record(root, name: str, view: int, view_set: str, seed: int, rows: list[dict]) -> dict:
+    """A view's record, as saved in ``views/<stem>.json``::
+
+        {"object", "view", "view_set", "seed", "support_plane": [a, b, c, d] (camera frame) or None,
+         "files": {"truth": "meshes/..", "points": "meshes/..", "<method>": "meshes/.."},
+         "rows": [completion rows, ROW_FIELDS],
+         "grasps": [one entry per (method, hand), see run.grasp_view]}
+
+    ``rows`` may carry the view's ``support_plane`` (as :func:`run.evaluate_view` returns them);
+    it is taken off the rows into the record. ``files`` lists only meshes that exist (a failed
+    method has none); paths are relative to ``root``.
+    """
+    planes = [r.pop("support_plane", None) for r in rows]
+    return {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed),
+            "support_plane": next((p for p in planes if p is not None), None),
+            "files": mesh_files(root, view_stem(name, view)), "rows": rows, "grasps": []}
+
+
+class ViewFileError(ValueError):
+    """A view file that cannot be read (half written, corrupt, or not a view file)."""
+
+
+def parse_view_file(text: str, root: str | Path) -> dict:
+    """A view file's content (either format) as a record (:func:`view_record`'s keys and any other
+    keys the file has); ``seed`` is None for the first format, which did not record it.
+
+    ``files`` maps kind (truth, points, method) to a path relative to ``root`` and only holds files
+    that exist. Raises :class:`ViewFileError` saying what is wrong.
+    """
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ViewFileError(f"not JSON ({e.msg} at line {e.lineno})") from None
+    rows: object
+    grasps: list = []
+    if isinstance(doc, list):  # the first format: completion rows only, meshes at fixed paths
+        rows, files = doc, None
+        if not rows:
+            raise ViewFileError("no rows")
+        head, doc = rows[0], {}
+    elif isinstance(doc, dict):
+        rows, files, head = doc.get("rows"), doc.get("files"), doc
+        grasps = doc.get("grasps") or []
+        if not isinstance(rows, list):
+            raise ViewFileError("no 'rows' list")
+        if not isinstance(grasps, list) or not all(isinstance(g, dict) for g in grasps):
+            raise ViewFileError("'grasps' is not a list of objects")
+    else:
+        raise ViewFileError(f"a JSON {type(doc).__name__}, not a view")
+    if not isinstance(head, dict):
+        raise ViewFileError("rows are not objects")
+    try:
+        name, view = str(head["object"]), int(head["view"])
+    except (KeyError, TypeError, ValueError):
+        raise ViewFileError("no object name and view number") from None
+    for r in rows:
+        if not isinstance(r, dict) or r.get("object", name) != name or int(r.get("view", view)) != view \
+                or "method" not in r:
+            raise ViewFileError("rows of different views, or without a method")
+    view_set = head.get("view_set") or (rows[0].get("view_set") if rows else "")
+    view_set = str(view_set or catalogue.view_split(name, view))
+    stem = view_stem(name, view)
+    if not isinstance(files, dict):
+        files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS}
+    files = {str(k): str(v) for k, v in files.items() if isinstance(v, str) and (Path(root) / v).is_file()}
+    seed = doc.get("seed")
+    return {**doc, "object": name, "view": view, "view_set": view_set, "seed": None if seed is None else int(seed),
+            "support_plane": doc.get("support_plane"), "files": files, "rows": rows, "grasps": grasps}
+
+
+def load_view(root, name: str, view: int, seed: int | None = None) -> dict | None:
+    """The record of a view (:func:`view_record`), or None when it has not been computed.
+
+    A first-format file gets ``seed`` (the caller's run seed; -1 when None) as its seed. Raises
+    :class:`ViewFileError` for a file that cannot be read.
+    """
+    path = view_file(root, name, view)
+    if not path.exists():
+        return None
+    record = parse_view_file(path.read_text(), root)
+    if record["seed"] is None:
+        record["seed"] = -1 if seed is None else int(seed)
+    return record
+
+
+def save_view(root, record: dict) -> Path:
+    """Write a record to ``views/<stem>.json`` atomically (a concurrent :meth:`ResultsStore.sync`
+    never reads it half written); returns the path."""
+    # NaN is written as NaN, which json reads back.
+    return atomic_write(view_file(root, record["object"], record["view"]), json.dumps(record, indent=1))
+
+
+def set_grasp_entry(record: dict, entry: dict) -> None:
+    """Put a grasp entry into ``record["grasps"]`` in place of any earlier one of its (method, hand)."""
+    key = (entry["method"], entry["hand"])
+    record["grasps"] = [g for g in record["grasps"] if (g["method"], g["hand"]) != key] + [entry]
+
+
+def upgrade_old_views(root, views, seed: int) -> None:
+    """Rewrite the first-format files of ``views`` (``(object, view, ...)`` tuples) as records, so
+    that every file in ``views/`` has the current format."""
+    for name, view, *_ in views:
+        path = view_file(root, name, view)
+        text = path.read_text() if path.exists() else "{}"
+        if isinstance(json.loads(text), list):
+            save_view(root, {**parse_view_file(text, root), "seed": int(seed)})
+
+
+def grasp_rows(base: dict, grasps, executions) -> list[dict]:
+    """One row (:data:`GRASP_ROW_FIELDS`) per planned grasp and its execution on the true object.
+
+    ``base``: object, view, view_set, method, hand. Units: joint error in degrees (mm for the
+    Panda's prismatic fingers), pose error, lift rise and slip in mm; booleans as 0/1.
+    """
+    rows = []
+    for rank, (g, e) in enumerate(zip(grasps, executions)):
+        lift = e.lift
+        rows.append({**base, "rank": rank, "epsilon_planned": float(g.epsilon), "volume_planned": float(g.volume),
+                     "energy_planned": float(g.energy), "epsilon_executed": float(e.epsilon),
+                     "volume_executed": float(e.volume), "joint_error_deg": float(e.joint_error),
+                     "pose_error_mm": float(e.pose_error), "start_clear": float(e.start_clear),
+                     "approach_contact": float(e.approach_contact),
+                     "lift_success": math.nan if lift is None else float(lift.success),
+                     "lift_rise_mm": math.nan if lift is None else 1000.0 * lift.rise,
+                     "lift_slip_mm": math.nan if lift is None else 1000.0 * lift.slip})
+    return rows
+
+
+def load_grasp_rows(root, records: list[dict]) -> list[dict]:
+    """Every executed grasp of the records' grasp entries, read back from their grasp files
+    (entries with an error or without a file have none)."""
+    from ..grasp.serialize import grasps_from_json
+
+    rows = []
+    for rec in records:
+        for g in rec.get("grasps", []):
+            if g["error"] or not g["file"]:
+                continue
+            gs = grasps_from_json((Path(root) / g["file"]).read_text())
+            base = {"object": rec["object"], "view": int(rec["view"]), "view_set": rec["view_set"],
+                    "method": g["method"], "hand": g["hand"]}
+            rows += grasp_rows(base, gs.grasps, gs.executions)
+    return rows

@@ -1,0 +1,24 @@
+"""Grasps in the viewer (paper Fig. 5, step 6; SPEC section 8): plan on a segment's mesh, draw the
+hands, execute them on the true object of a synthetic scene, export them.
+
+Frames: everything here is in the viewer's WORLD frame (metres, z up, table top z = 0). A segment's
+mesh (camera frame on its :class:`~shapeviewer.pipeline.Completion`) is mapped with
+``scene.T_world_cam`` before planning; a grasp's ``T_world_palm`` places the palm frame, in which
+:func:`~shapeviewer.grasp.hands.hand_meshes` gives the hand's links.
+
+Jobs: planning and execution run in a background thread, one grasp job at a time, outside the
+app's job slot, so the rest of the viewer keeps working meanwhile; a mesh that the planner needs
+and the segment lacks is made first through the app (which takes its slot for the few moments
+it needs). The controller reaches the app only through a :class:`GraspHost`.
+
+One module per job: :mod:`.state` (plain values: a segment's grasps, a job, the true object),
+:mod:`.summary` (the folder's text), :mod:`.controls` (the folder's GUI), :mod:`.drawing` (scene
+nodes, picking), :mod:`.work` (running jobs) and :mod:`.controller`, which ties them together.
+"""
+
+from .controller import GraspController, GraspHost
+from .drawing import EXECUTED_COLOR, NO_CLOSURE_COLOR, TRUTH_OPACITY, epsilon_colors, hand_skeleton
+from .state import GraspJob, SegmentGrasps, ground_truth_object, object_mesh_world
+
+__all__ = ["EXECUTED_COLOR", "NO_CLOSURE_COLOR", "TRUTH_OPACITY", "GraspController", "GraspHost", "GraspJob",
+           "SegmentGrasps", "epsilon_colors", "ground_truth_object", "hand_skeleton", "object_mesh_world"]

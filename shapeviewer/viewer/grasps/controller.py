@@ -1,0 +1,330 @@
+"""The grasp controller: plans and executes grasps on the app's segments, keeps which are listed
+and selected, and wires the Grasps folder. It reaches the app only through a :class:`GraspHost`."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+import viser
+
+from ...grasp.execute import ExecutionResult, execute_grasps, lift_test
+from ...grasp.hands import HAND_NAMES
+from ...grasp.plan import plan
+from ...grasp.serialize import grasps_to_json, scene_zip
+from ..jobs import Notify, send_download
+from ..state import MESH_KINDS, LoadedScene
+from .controls import DEFAULT_GRASPS, MAX_GRASPS, NO_GRASP, build_grasp_panel
+from .drawing import GraspDrawing
+from .state import GraspJob, GraspJobError, SegmentGrasps, ground_truth
+from .summary import execution_summary, grasp_options, info_markdown
+from .work import GraspJobs
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GraspHost:
+    """What the grasp controller needs from the app (it never sees the app itself).
+
+    Attributes:
+        scene: the loaded scene (world frame), None before the first.
+        selected_segment: the segment chosen in the Completion folder, or None.
+        mesh: ``(kind, segment id)`` -> that segment's camera-frame mesh of ``kind`` (one of
+            :data:`~..state.MESH_KINDS`) when it has been made, else None.
+        make_mesh: ``(kind, segment id, client)`` -> make and draw that mesh (taking the app's job
+            slot for the moments it needs); None when it cannot be made (the client was told why).
+        show_layer: ``(layer key, visible)``: tick or untick a layer's checkbox.
+        set_status: show a line in the panel's status.
+        notify: ``(client, title, body, color=None, auto_close=8.0)``; red ones are errors.
+    """
+
+    scene: Callable[[], LoadedScene | None]
+    selected_segment: Callable[[], int | None]
+    mesh: Callable[[str, int], trimesh.Trimesh | None]
+    make_mesh: Callable[[str, int, viser.ClientHandle | None], trimesh.Trimesh | None]
+    show_layer: Callable[[str, bool], None]
+    set_status: Callable[[str], None]
+    notify: Notify
+
+
+class GraspController:
+    """Plans, executes, draws and exports the grasps of the app's segments (one job at a time).
+
+    Args:
+        server: the viser server (the Grasps folder goes in its GUI, the hands in its scene).
+        host: see :class:`GraspHost`.
+        order: where the Grasps folder goes among the panel's folders.
+    """
+
+    def __init__(self, server: viser.ViserServer, host: GraspHost, order: float | None = None) -> None:
+        self.server = server
+        self.host = host
+        self.panel = build_grasp_panel(server.gui, order)
+        self.drawing = GraspDrawing(server)
+        self.jobs = GraspJobs(self.panel, host.notify, host.set_status)
+        self.sets: dict[int, SegmentGrasps] = {}
+        self.current: int | None = None  # the segment whose grasps the dropdown lists
+        self.selected: int | None = None  # index of the selected grasp in that segment's list
+        self._state = threading.RLock()  # guards sets/current/selected
+        self._options: dict[str, int] = {}  # grasp dropdown entry -> index
+        self._wire()
+
+    @property
+    def job(self) -> GraspJob | None:
+        """The running (or last) grasp job."""
+        return self.jobs.job
+
+    # ------------------------------------------------------------------------------------------
+    # Jobs
+
+    def plan(self, segment_id: int | None, hand: str = "barrett", method: str = "fast",
+             n_grasps: int = DEFAULT_GRASPS, client: viser.ClientHandle | None = None, wait: bool = True,
+             seed: int = 0, budget_seconds: float | None = None) -> GraspJob | None:
+        """Plan ``n_grasps`` grasps with ``hand`` on segment ``segment_id``'s ``method`` mesh.
+
+        The mesh is made first when the segment lacks it. Runs in a background thread (``wait``:
+        return once it has finished). Returns the job (its ``result`` the :class:`SegmentGrasps`),
+        or None when it cannot start (the client is told why).
+        """
+        if hand not in HAND_NAMES:
+            raise ValueError(f"unknown hand {hand!r}; choose one of {HAND_NAMES}")
+        if method not in MESH_KINDS:
+            raise ValueError(f"unknown mesh {method!r}; choose one of {MESH_KINDS}")
+        scene = self.host.scene()
+        if scene is None or segment_id is None or segment_id not in scene.segments:
+            self.host.notify(client, "No segment selected", "Click a segment or pick one in the Completion folder, "
+                             "then plan grasps on it.", "yellow")
+            return None
+        n_grasps = int(np.clip(n_grasps, 1, MAX_GRASPS))
+        return self.jobs.start("plan", segment_id, client, wait,
+                               lambda job: self._plan_job(job, scene, segment_id, hand, method, n_grasps, seed,
+                                                          budget_seconds, client))
+
+    def execute(self, segment_id: int | None, indices: Sequence[int] | None, client: viser.ClientHandle | None = None,
+                wait: bool = True, lift: bool = True) -> GraspJob | None:
+        """Execute grasps ``indices`` (None: all) of segment ``segment_id`` on its true object, with
+        the lift test when ``lift``. Synthetic scenes only: for a real capture (or a segment that is
+        no single object) the client is told there is no ground truth and None is returned."""
+        scene = self.host.scene()
+        if scene is None or segment_id is None or segment_id not in scene.segments:
+            self.host.notify(client, "No grasps", "Plan grasps on a segment first.", "yellow")
+            return None
+        truth = ground_truth(scene.capture, scene.segments[segment_id])  # first: a real capture never has any
+        if isinstance(truth, str):
+            self.host.notify(client, "No ground truth", truth, "red")
+            return None
+        s = self.sets.get(segment_id)
+        if s is None or not s.grasps:
+            self.host.notify(client, "No grasps", f"Plan grasps on segment {segment_id} first.", "yellow")
+            return None
+        picked = list(range(len(s.grasps))) if indices is None else [int(i) for i in indices]
+        if not picked or not all(0 <= i < len(s.grasps) for i in picked):
+            raise ValueError(f"grasp indices {indices} out of range 0..{len(s.grasps) - 1}")
+        return self.jobs.start("execute", segment_id, client, wait,
+                               lambda job: self._execute_job(job, scene, s, picked, truth, lift, client))
+
+    def cancel(self) -> bool:
+        """Ask the running grasp job to stop; False when none runs."""
+        return self.jobs.cancel()
+
+    def shutdown(self, timeout: float = 10.0) -> None:
+        """Cancel the running job and wait for its thread (before the server stops)."""
+        self.jobs.shutdown(timeout)
+
+    def _mesh(self, segment_id: int, method: str, client: viser.ClientHandle | None) -> trimesh.Trimesh:
+        """Segment ``segment_id``'s camera-frame ``method`` mesh, made through the app when missing."""
+        mesh = self.host.mesh(method, segment_id)
+        if mesh is not None:
+            return mesh
+        self.host.set_status(f"_Grasps: making the {method} mesh of segment {segment_id} first..._")
+        mesh = self.host.make_mesh(method, segment_id, client)
+        if mesh is None:
+            raise GraspJobError(f"Segment {segment_id} has no {method} mesh to plan on and it could not be made "
+                                "(see the message above).")
+        return mesh
+
+    def _plan_job(self, job: GraspJob, scene: LoadedScene, segment_id: int, hand: str, method: str, n_grasps: int,
+                  seed: int, budget_seconds: float | None, client: viser.ClientHandle | None) -> SegmentGrasps | None:
+        mesh_cam = self._mesh(segment_id, method, client)
+        if job.cancel_event.is_set():
+            return None
+        mesh_world = mesh_cam.copy()
+        mesh_world.apply_transform(scene.T_world_cam)
+        # A synthetic scene stands on the table z = 0; a real one when segmentation found the plane.
+        table = bool(scene.capture.objects) or scene.segmentation.plane_cam is not None
+        self.host.set_status(f"_Planning {n_grasps} {hand} grasps on segment {segment_id}..._")
+        t0 = time.perf_counter()
+        result = plan(mesh_world, hand=hand, n_grasps=n_grasps, seed=seed, table=table, budget_seconds=budget_seconds,
+                      progress=self.jobs.progress, cancel=job.cancel_event.is_set)
+        seconds = time.perf_counter() - t0
+        if result.stats.cancelled or job.cancel_event.is_set():
+            self.host.notify(client, "Planning cancelled", f"Segment {segment_id}: no grasps kept.", "yellow")
+            return None
+        s = SegmentGrasps(segment_id, hand, method, mesh_world, table, seed, result.grasps, result.stats)
+        with self._state:
+            if self.host.scene() is not scene:  # a new scene was loaded meanwhile
+                self.host.notify(client, "Grasps dropped", "The scene changed while planning.", "yellow")
+                return None
+            self.sets[segment_id] = s
+            self.current, self.selected = segment_id, (0 if s.grasps else None)
+            self.drawing.draw_segment(s)
+            self._refresh_panel()
+        self.host.show_layer("grasps", True)  # the user asked to see them
+        n_fc = sum(g.force_closure for g in s.grasps)
+        if s.grasps:
+            self.host.notify(client, "Grasps ready", f"Segment {segment_id}: {len(s.grasps)} {hand} grasps "
+                             f"({n_fc} force closure) on the {method} mesh in {seconds:.1f} s.", "green")
+        else:
+            self.host.notify(client, "No grasp found", f"Segment {segment_id}: no {hand} grasp touches the {method} "
+                             "mesh with every finger. Try the other hand or another mesh.", "yellow")
+        return s
+
+    def _execute_job(self, job: GraspJob, scene: LoadedScene, s: SegmentGrasps, picked: list[int],
+                     truth: tuple[str, trimesh.Trimesh], lift: bool,
+                     client: viser.ClientHandle | None) -> list[ExecutionResult]:
+        name, truth_world = truth
+        sid = s.segment_id
+        self.host.set_status(f"_Executing {len(picked)} grasp(s) of segment {sid} on {name}..._")
+        results = execute_grasps([s.grasps[i] for i in picked], truth_world, table=s.table, lift=False)
+        self.jobs.progress(0.1 if lift else 1.0)
+        if lift:
+            for j, r in enumerate(results):
+                if job.cancel_event.is_set():
+                    break
+                r.lift = lift_test(r, truth_world, table=s.table)
+                self.jobs.progress(0.1 + 0.9 * (j + 1) / len(results))
+        with self._state:
+            if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
+                return results
+            for i, r in zip(picked, results):
+                s.executions[i] = r
+            s.truth_name, s.truth_world = name, truth_world
+            self.drawing.draw_executions(s, picked)
+            self._restyle()
+            self._show_info()
+        # The opaque completion and its input voxels would hide the (translucent) true object.
+        for layer in (f"{s.method}_mesh", "cnn_input"):
+            self.host.show_layer(layer, False)
+        cancelled = " (cancelled before every lift test)" if job.cancel_event.is_set() else ""
+        self.host.notify(client, "Executed" + cancelled, execution_summary(sid, name, results), "green")
+        return results
+
+    # ------------------------------------------------------------------------------------------
+    # Selection, export, scene changes
+
+    def pick(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> tuple[int | None, float]:
+        """``(index, t)`` of the listed segment's grasp whose visible hand a world-frame click ray
+        hits first, ``t`` metres along the ray; ``(None, inf)`` when it misses them all."""
+        return self.drawing.pick(self.current, ray_origin, ray_direction)
+
+    def select(self, index: int | None, segment_id: int | None = None) -> None:
+        """Select grasp ``index`` of segment ``segment_id`` (default: the listed one) and restyle."""
+        with self._state:
+            if segment_id is not None and segment_id in self.sets:
+                self.current = segment_id
+            s = self.sets.get(self.current)
+            self.selected = None if s is None or index is None else int(np.clip(index, 0, len(s.grasps) - 1))
+            self._refresh_panel()
+
+    def follow_segment(self, segment_id: int | None) -> None:
+        """The app selected ``segment_id``: list its grasps, when it has some."""
+        if segment_id is not None and segment_id in self.sets and segment_id != self.current:
+            self.select(0 if self.sets[segment_id].grasps else None, segment_id)
+
+    def export(self, segment_id: int | None, fmt: str = "json") -> tuple[str, bytes]:
+        """``(file name, content)`` of a segment's grasps: ``json`` (with executions when present) or
+        ``zip`` (the pybullet scene of the mesh they were planned on). Raises ValueError for the user."""
+        s = self.sets.get(segment_id) if segment_id is not None else None
+        if s is None or not s.grasps:
+            raise ValueError("No grasps to export: plan grasps on a segment first.")
+        scene = self.host.scene()
+        meta = {"source": scene.capture.source, "segment": s.segment_id, "mesh": s.method, "hand": s.hand,
+                "seed": s.seed, "table": s.table, "T_world_cam": np.asarray(scene.T_world_cam).tolist(),
+                "planning_seconds": s.stats.seconds.get("total"), "ground_truth": s.truth_name}
+        stem = f"{scene.name}_seg{s.segment_id}_{s.method}_{s.hand}"
+        if fmt == "json":
+            return f"{stem}_grasps.json", grasps_to_json(s.grasps, s.executions, meta).encode()
+        if fmt == "zip":
+            return f"{stem}_pybullet.zip", scene_zip(s.mesh_world, s.grasps, s.executions, meta)
+        raise ValueError(f"unknown grasp export {fmt!r}; choose json or zip")
+
+    def clear(self) -> None:
+        """Forget every segment's grasps and remove their nodes (a new scene); cancels a running job."""
+        if self.jobs.running():
+            self.jobs.job.cancel()
+        with self._state:
+            self.drawing.clear()
+            self.sets, self.current, self.selected = {}, None, None
+            self._refresh_panel()
+
+    def info_markdown(self) -> str:
+        """The Grasps folder's text: the listed segment's plan, the selected grasp, its execution."""
+        scene = self.host.scene()
+        if scene is None:
+            return info_markdown(None, False, None)
+        return info_markdown(self.sets.get(self.current), not scene.capture.objects, self.selected)
+
+    # ------------------------------------------------------------------------------------------
+    # Panel
+
+    def _restyle(self) -> None:
+        self.drawing.restyle(self.current, self.selected, bool(self.panel.show_all.value))
+
+    def _refresh_panel(self) -> None:
+        """Grasp dropdown, styles and info for the listed segment."""
+        s = self.sets.get(self.current)
+        if s is None or not s.grasps:
+            self._options = {}
+            self.panel.grasp.options = (NO_GRASP,)
+            self.panel.grasp.value = NO_GRASP
+        else:
+            self._options = grasp_options(s)
+            options = tuple(self._options)
+            if tuple(self.panel.grasp.options) != options:
+                self.panel.grasp.options = options
+            value = NO_GRASP if self.selected is None else options[self.selected]
+            if self.panel.grasp.value != value:
+                self.panel.grasp.value = value
+        self._restyle()
+        self._show_info()
+
+    def _show_info(self) -> None:
+        self.panel.info.content = self.info_markdown()
+
+    def _wire(self) -> None:
+        p = self.panel
+
+        @p.plan.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.plan(self.host.selected_segment(), p.hand.value, p.method.value, int(p.count.value), event.client,
+                      wait=False)
+
+        p.cancel.on_click(lambda _event: self.cancel())
+
+        @p.grasp.on_update
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is None:
+                return  # set by the controller itself
+            k = self._options.get(p.grasp.value)
+            if k != self.selected:
+                self.select(k)
+
+        p.show_all.on_update(lambda _event: self._restyle())
+
+        @p.execute.on_click
+        def _(event: viser.GuiEvent) -> None:
+            if self.selected is None:
+                self.host.notify(event.client, "No grasp selected", "Plan grasps and pick one first.", "yellow")
+            else:
+                self.execute(self.current, [self.selected], event.client, wait=False)
+
+        p.execute_all.on_click(lambda event: self.execute(self.current, None, event.client, wait=False))
+        for fmt, button in p.exports.items():
+            button.on_click(lambda event, fmt=fmt: send_download(event.client, lambda: self.export(self.current, fmt),
+                                                                 self.host.notify))

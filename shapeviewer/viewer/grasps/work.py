@@ -1,0 +1,113 @@
+"""Running grasp jobs: one at a time, each in a background thread, outside the app's job slot
+(:class:`~..jobs.JobSlot`), so the rest of the viewer keeps working meanwhile.
+
+The GUI is shared by every browser, so the progress bar and the Cancel button are too.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+
+import numpy as np
+import viser
+
+from ..jobs import READY, Notify
+from .controls import GraspPanel
+from .state import GraspJob, GraspJobError
+
+log = logging.getLogger(__name__)
+
+
+class GraspJobs:
+    """Starts grasp jobs and shows their progress in the Grasps folder.
+
+    Args:
+        panel: the Grasps folder (job buttons, Cancel, progress bar).
+        notify: tells the browsers about failures and a busy runner.
+        set_status: the panel's status line (:data:`~..jobs.READY` when a job ends).
+    """
+
+    def __init__(self, panel: GraspPanel, notify: Notify, set_status: Callable[[str], None]) -> None:
+        self.panel = panel
+        self.notify = notify
+        self.set_status = set_status
+        self.job: GraspJob | None = None  # the running or last job
+        self.busy = threading.Lock()  # held by the running job
+        self._last_progress = -1
+
+    def start(self, kind: str, segment_id: int, client: viser.ClientHandle | None, wait: bool,
+              work: Callable[[GraspJob], object]) -> GraspJob | None:
+        """Run ``work(job)`` in a background thread unless a grasp job already runs (``wait``:
+        return once it has finished). ``kind``: ``plan`` or ``execute``."""
+        if not self.busy.acquire(blocking=False):
+            self.notify(client, "Busy", "A grasp job is running: wait for it or press Cancel.", auto_close=3.0)
+            return None
+        job = GraspJob(kind, segment_id)
+        self.job = job
+        self._set_running(True)
+
+        def run() -> None:
+            try:
+                job.result = work(job)
+            except GraspJobError as e:
+                job.error = str(e)
+                if not job.cancel_event.is_set():  # after Cancel (or a new scene) it is no news
+                    self.notify(client, "Grasps", str(e), "red")
+            except Exception as e:  # a bad mesh, pybullet, a vanished client...: keep the app alive
+                log.exception("grasp %s job on segment %s failed", kind, segment_id)
+                job.error = f"{type(e).__name__}: {e}"
+                self.notify(client, f"Grasp {'planning' if kind == 'plan' else 'execution'} failed",
+                            f"Segment {segment_id}: {e}", "red")
+            finally:
+                job.cancelled = job.cancel_event.is_set()
+                self._set_running(False)
+                self.busy.release()
+                job.done.set()
+
+        job.thread = threading.Thread(target=run, name=f"grasp-{kind}-seg{segment_id}", daemon=True)
+        job.thread.start()
+        if wait:
+            job.thread.join()
+        return job
+
+    def running(self) -> bool:
+        """Whether a job runs now."""
+        return self.job is not None and not self.job.done.is_set()
+
+    def cancel(self) -> bool:
+        """Ask the running job to stop; False when none runs."""
+        if not self.running():
+            return False
+        self.job.cancel()
+        self.set_status("_Cancelling the grasp job..._")
+        return True
+
+    def shutdown(self, timeout: float = 10.0) -> None:
+        """Cancel the running job and wait for its thread (before the server stops)."""
+        job = self.job
+        if job is not None and job.thread is not None:
+            job.cancel()
+            job.thread.join(timeout)
+
+    def progress(self, fraction: float) -> None:
+        """A job's progress (0..1) on the bar, sent only when a whole percent changes."""
+        pct = int(np.clip(100 * fraction, 0, 100))
+        if pct != self._last_progress:
+            self._last_progress = pct
+            self.panel.progress.value = float(pct)
+
+    def _set_running(self, running: bool) -> None:
+        """Buttons, progress bar and status while a job runs (and back when it ends)."""
+        try:
+            for b in self.panel.job_buttons:
+                b.disabled = running
+            self.panel.cancel.disabled = not running
+            self.panel.progress.value = 0.0
+            self.panel.progress.visible = running
+            self._last_progress = -1
+            if not running:
+                self.set_status(READY)
+        except Exception:  # the server is stopping
+            log.debug("could not update the grasp panel", exc_info=True)
