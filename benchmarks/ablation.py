@@ -68,8 +68,11 @@ def main() -> None:
                 p = c.predict(grid, context=context)
                 for mode in modes:
                     try:
-                        mesh = (fast_mesh(p, frame) if mode == "fast"
-                                else detailed_mesh(p, frame, v.points_cam, support_plane=plane))
+                        mesh = (
+                            fast_mesh(p, frame)
+                            if mode == "fast"
+                            else detailed_mesh(p, frame, v.points_cam, support_plane=plane)
+                        )
                         j, d = score(mesh, v.truth_cam)
                     except ValueError:
                         j, d = 0.0, math.nan
@@ -93,8 +96,10 @@ def report(rows: list[dict]) -> None:
             if not sel:
                 continue
             wins = np.mean([r["j80"] > hull[(r["object"], r["view"])] for r in sel])
-            print(f"{var:28s} {s:24s} {len(sel):4d} {np.mean([r['j80'] for r in sel]):6.3f} "
-                  f"{np.nanmean([r['distance_mm'] for r in sel]):8.2f} {100 * wins:6.0f}%")
+            print(
+                f"{var:28s} {s:24s} {len(sel):4d} {np.mean([r['j80'] for r in sel]):6.3f} "
+                f"{np.nanmean([r['distance_mm'] for r in sel]):8.2f} {100 * wins:6.0f}%"
+            )
     by_kind: dict = defaultdict(lambda: defaultdict(list))
     for r in rows:
         by_kind[r["kind"]][r["variant"]].append(r["j80"])

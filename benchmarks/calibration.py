@@ -38,7 +38,7 @@ def main() -> None:
     spreads, errors, probs, truths, observed = [], [], [], [], []
     times = []
     for i in range(0, len(idx), 8):
-        x, y, ctx = gs.grids(idx[i:i + 8])
+        x, y, ctx = gs.grids(idx[i : i + 8])
         for b in range(len(x)):
             t0 = time.perf_counter()
             s = completer.predict_samples(x[b], args.samples, context=ctx[b])
@@ -52,9 +52,13 @@ def main() -> None:
             observed.append(ndimage.binary_dilation(x[b])[active])
     sd, err, p, t, obs = (np.concatenate(a) for a in (spreads, errors, probs, truths, observed))
     bins = np.minimum((p * 10).astype(int), 9)
-    ece = sum(abs(p[bins == k].mean() - t[bins == k].mean()) * np.mean(bins == k) for k in range(10) if (bins == k).any())
-    print(f"{len(idx)} {args.set} views, {len(sd):,} active voxels, {args.samples} samples; "
-          f"median {1000 * np.median(times):.0f} ms per segment")
+    ece = sum(
+        abs(p[bins == k].mean() - t[bins == k].mean()) * np.mean(bins == k) for k in range(10) if (bins == k).any()
+    )
+    print(
+        f"{len(idx)} {args.set} views, {len(sd):,} active voxels, {args.samples} samples; "
+        f"median {1000 * np.median(times):.0f} ms per segment"
+    )
     print(f"expected calibration error of the mean probability: {ece:.4f}")
     order = np.argsort(sd, kind="stable")
     deciles = np.array_split(order, 10)

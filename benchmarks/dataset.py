@@ -67,10 +67,14 @@ def main() -> None:
                 again.append(time.perf_counter() - t0)
             warm += again
             faces = sum(len(h.faces) for h in d.drawn.values() if hasattr(h, "faces"))
-            print(f"{name:28s} view {view:3d}: cold {cold[-1]:.3f} s, warm {statistics.median(again):.3f} s "
-                  f"({faces:,} triangles shown)")
-        print(f"\nview load, median: cold {statistics.median(cold):.3f} s (max {max(cold):.3f}), "
-              f"warm {statistics.median(warm):.3f} s (max {max(warm):.3f}); budget 0.5 s")
+            print(
+                f"{name:28s} view {view:3d}: cold {cold[-1]:.3f} s, warm {statistics.median(again):.3f} s "
+                f"({faces:,} triangles shown)"
+            )
+        print(
+            f"\nview load, median: cold {statistics.median(cold):.3f} s (max {max(cold):.3f}), "
+            f"warm {statistics.median(warm):.3f} s (max {max(warm):.3f}); budget 0.5 s"
+        )
     finally:
         app.stop()
 

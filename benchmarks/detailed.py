@@ -26,12 +26,18 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
-
 from pipeline import load_captures  # noqa: E402  (benchmarks/pipeline.py)
 
-STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge + carve"),
-         ("fill_gaps", "fill gaps along z"), ("smooth", "smoothing solver"), ("marching_cubes", "marching cubes"))
+import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
+
+STEPS = (
+    ("density", "density ratio"),
+    ("upsample", "up-sample CNN output"),
+    ("merge", "merge + carve"),
+    ("fill_gaps", "fill gaps along z"),
+    ("smooth", "smoothing solver"),
+    ("marching_cubes", "marching cubes"),
+)
 TARGET = {"smooth": 0.5, "total": 1.0}
 PAPER_SECONDS = 2.136
 
@@ -80,18 +86,26 @@ def main(argv: list[str] | None = None) -> int:
             rows["total"].append(cnn + seconds)
             ratios.append(steps["upsample_ratio"])
             distances.append(float(statistics.median(points[:, 2])))
-            print(f"{cap.source} segment {seg.id}: {len(points)} points at {distances[-1]:.2f} m, "
-                  f"r = {ratios[-1]}, Algorithm 1 {seconds:.3f} s", file=sys.stderr)
+            print(
+                f"{cap.source} segment {seg.id}: {len(points)} points at {distances[-1]:.2f} m, "
+                f"r = {ratios[-1]}, Algorithm 1 {seconds:.3f} s",
+                file=sys.stderr,
+            )
 
-    print(f"\nSegments: {len(ratios)} (distance from camera {min(distances):.2f}-{max(distances):.2f} m, "
-          f"median {statistics.median(distances):.2f} m; up-sampling ratio r: "
-          f"{', '.join(f'{r}: {ratios.count(r)}' for r in sorted(set(ratios)))})")
+    print(
+        f"\nSegments: {len(ratios)} (distance from camera {min(distances):.2f}-{max(distances):.2f} m, "
+        f"median {statistics.median(distances):.2f} m; up-sampling ratio r: "
+        f"{', '.join(f'{r}: {ratios.count(r)}' for r in sorted(set(ratios)))})"
+    )
     print(f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}; load average {os.getloadavg()[0]:.1f}\n")
     print(f"| {'step':34s} | {'median':>9s} | {'target':>10s} |")
     print(f"|{'-' * 36}|{'-' * 11}|{'-' * 12}|")
     ok = True
-    table = [("voxelize + CNN", "cnn")] + [(f"  {label}", key) for key, label in STEPS] + [
-        ("Algorithm 1 (sum of the steps)", "algorithm_1"), ("**end to end**", "total")]
+    table = (
+        [("voxelize + CNN", "cnn")]
+        + [(f"  {label}", key) for key, label in STEPS]
+        + [("Algorithm 1 (sum of the steps)", "algorithm_1"), ("**end to end**", "total")]
+    )
     for label, key in table:
         med = statistics.median(rows[key])
         target = ""

@@ -64,8 +64,8 @@ def scene_cases(seed: int) -> list[Case]:
     the CNN's fast mesh in the world frame (the scene's ``T_world_cam``), and that object's true mesh."""
     from shapeviewer.model import load_completer
     from shapeviewer.pipeline import complete_points
-    from shapeviewer.sim.demo_scene import default_scene
     from shapeviewer.segment import segment_scene
+    from shapeviewer.sim.demo_scene import default_scene
     from shapeviewer.viewer.grasps import ground_truth_object, object_mesh_world
 
     capture = default_scene(seed)
@@ -89,8 +89,13 @@ def main() -> None:
     ap.add_argument("--hand", default="barrett")
     ap.add_argument("--grasps", type=int, default=20)
     ap.add_argument("--lifts", type=int, default=5, help="lift tests per object (each with a shake)")
-    ap.add_argument("--scene", type=int, default=None, metavar="SEED",
-                    help="plan on the CNN completions of this default scene's objects instead of --objects")
+    ap.add_argument(
+        "--scene",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="plan on the CNN completions of this default scene's objects instead of --objects",
+    )
     args = ap.parse_args()
     cases = catalogue_cases(args.objects) if args.scene is None else scene_cases(args.scene)
     # Only now: the meshes and scene come from the usual cache, every V-HACD of a plan is new.
@@ -104,9 +109,11 @@ def main() -> None:
     t = time.perf_counter()
     hand_samples(args.hand)
     print(f"hand samples ({args.hand}, once per process): {time.perf_counter() - t:.2f} s")
-    header = (f"{'object':28s} {'faces':>6s} {'plan s':>7s} {'cpu s':>6s} {'search':>7s} {'sim':>6s} {'evals':>6s}"
-              f" {'evals/s':>8s} {'simul.':>6s} {'grasps':>6s} {'FC':>3s} {'exec ms':>8s} {'joint deg':>9s}"
-              f" {'pose mm':>8s} {'lift s':>7s} {'lifted':>6s}")
+    header = (
+        f"{'object':28s} {'faces':>6s} {'plan s':>7s} {'cpu s':>6s} {'search':>7s} {'sim':>6s} {'evals':>6s}"
+        f" {'evals/s':>8s} {'simul.':>6s} {'grasps':>6s} {'FC':>3s} {'exec ms':>8s} {'joint deg':>9s}"
+        f" {'pose mm':>8s} {'lift s':>7s} {'lifted':>6s}"
+    )
     print(header)
     rows = []
     for name, truth, mesh in cases:
@@ -120,23 +127,32 @@ def main() -> None:
         executed = execute_grasps(grasps, truth)
         exec_ms = 1000 * (time.perf_counter() - t) / max(len(grasps), 1)
         lifts, lift_times = [], []
-        for e in executed[:args.lifts]:
+        for e in executed[: args.lifts]:
             t = time.perf_counter()
             lifts.append(lift_test(e, truth, shake=True).success)
             lift_times.append(time.perf_counter() - t)
-        row = dict(plan=s.seconds["total"], cpu=cpu, rate=s.evaluations_per_second, exec_ms=exec_ms,
-                   lift=float(np.mean(lift_times)) if lift_times else float("nan"))
+        row = dict(
+            plan=s.seconds["total"],
+            cpu=cpu,
+            rate=s.evaluations_per_second,
+            exec_ms=exec_ms,
+            lift=float(np.mean(lift_times)) if lift_times else float("nan"),
+        )
         rows.append(row)
-        print(f"{name:28s} {len(mesh.faces):6d} {s.seconds['total']:7.2f} {cpu:6.2f} {s.seconds['search']:7.2f}"
-              f" {s.seconds['simulate']:6.2f} {s.evaluations:6d} {s.evaluations_per_second:8.0f} {s.simulated:6d}"
-              f" {len(grasps):6d} {sum(g.force_closure for g in grasps):3d} {exec_ms:8.1f}"
-              f" {np.mean([e.joint_error for e in executed]):9.2f} {np.mean([e.pose_error for e in executed]):8.2f}"
-              f" {row['lift']:7.3f} {sum(lifts):3d}/{len(lifts):<2d}")
-    print(f"\n{'median':28s} plan {np.median([r['plan'] for r in rows]):.2f} s (target 10;"
-          f" {np.median([r['cpu'] for r in rows]):.2f} s of this process's CPU time),"
-          f" {np.median([r['rate'] for r in rows]):.0f} evaluations/s,"
-          f" execution {np.median([r['exec_ms'] for r in rows]):.1f} ms (target 50),"
-          f" lift {np.median([r['lift'] for r in rows]):.3f} s (target 0.5)")
+        print(
+            f"{name:28s} {len(mesh.faces):6d} {s.seconds['total']:7.2f} {cpu:6.2f} {s.seconds['search']:7.2f}"
+            f" {s.seconds['simulate']:6.2f} {s.evaluations:6d} {s.evaluations_per_second:8.0f} {s.simulated:6d}"
+            f" {len(grasps):6d} {sum(g.force_closure for g in grasps):3d} {exec_ms:8.1f}"
+            f" {np.mean([e.joint_error for e in executed]):9.2f} {np.mean([e.pose_error for e in executed]):8.2f}"
+            f" {row['lift']:7.3f} {sum(lifts):3d}/{len(lifts):<2d}"
+        )
+    print(
+        f"\n{'median':28s} plan {np.median([r['plan'] for r in rows]):.2f} s (target 10;"
+        f" {np.median([r['cpu'] for r in rows]):.2f} s of this process's CPU time),"
+        f" {np.median([r['rate'] for r in rows]):.0f} evaluations/s,"
+        f" execution {np.median([r['exec_ms'] for r in rows]):.1f} ms (target 50),"
+        f" lift {np.median([r['lift'] for r in rows]):.3f} s (target 0.5)"
+    )
 
 
 if __name__ == "__main__":

@@ -32,16 +32,19 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
-
 import msgspec  # noqa: E402  (viser's wire format)
 import viser  # noqa: E402
 import websockets  # noqa: E402
 import zstandard  # noqa: E402
 
+import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
+
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
-ORGANIZED_REAL = ("milk_cartoon_all_small_clorox.pcd", "table_scene_mug_stereo_textured.pcd",
-                  "frame_20121214T142255.814212.pcd")
+ORGANIZED_REAL = (
+    "milk_cartoon_all_small_clorox.pcd",
+    "table_scene_mug_stereo_textured.pcd",
+    "frame_20121214T142255.814212.pcd",
+)
 PAPER = {"segmentation": 0.119, "click_to_mesh": 0.142}
 TARGET = {"segmentation": 0.12, "click_to_mesh": 0.15}
 
@@ -63,7 +66,7 @@ class ArrivalClock:
                 now = time.perf_counter()
                 size = int.from_bytes(frame[:8], "little")
                 compressed = int.from_bytes(frame[8:16], "little")
-                payload = msgspec.msgpack.decode(unzstd.decompress(frame[16:16 + compressed], max_output_size=size))
+                payload = msgspec.msgpack.decode(unzstd.decompress(frame[16 : 16 + compressed], max_output_size=size))
                 with self._cv:
                     for m in payload["messages"]:
                         if isinstance(m.get("name"), str):
@@ -138,8 +141,10 @@ def main(argv: list[str] | None = None) -> int:
                 t0 = time.perf_counter()
                 c = app.complete(sid)
                 if c is None or c.fast_mesh is None:
-                    print(f"  {cap.source} segment {sid}: no fast mesh ({app.last_error or c and c.error})",
-                          file=sys.stderr)
+                    print(
+                        f"  {cap.source} segment {sid}: no fast mesh ({app.last_error or c and c.error})",
+                        file=sys.stderr,
+                    )
                     continue
                 t_arrived = clock.wait_for(f"/fast_mesh/seg_{sid}", after=t0)
                 for k in ("voxelize", "cnn", "marching_cubes", "send"):
@@ -152,13 +157,18 @@ def main(argv: list[str] | None = None) -> int:
     n_seg = len(stages["click_to_mesh"])
     model = f"{app.completer.arch} ({'trained' if app.completer.trained else 'UNTRAINED'}: {app.completer.source})"
     print(f"\nCaptures: {len(captures)} ({', '.join(c.source for c in captures)}); completed segments: {n_seg}")
-    print(f"Model: {model}; OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, "
-          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}; load average {os.getloadavg()[0]:.1f}\n")
-    rows = [("segmentation (640x480 cloud)", segmentation, "segmentation"),
-            ("  voxelize", stages["voxelize"], None), ("  CNN forward", stages["cnn"], None),
-            ("  marching cubes", stages["marching_cubes"], None),
-            ("  send (queue scene nodes, server side)", stages["send"], None),
-            ("click -> fast mesh received by client", stages["click_to_mesh"], "click_to_mesh")]
+    print(
+        f"Model: {model}; OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, "
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}; load average {os.getloadavg()[0]:.1f}\n"
+    )
+    rows = [
+        ("segmentation (640x480 cloud)", segmentation, "segmentation"),
+        ("  voxelize", stages["voxelize"], None),
+        ("  CNN forward", stages["cnn"], None),
+        ("  marching cubes", stages["marching_cubes"], None),
+        ("  send (queue scene nodes, server side)", stages["send"], None),
+        ("click -> fast mesh received by client", stages["click_to_mesh"], "click_to_mesh"),
+    ]
     print(f"| {'stage':42s} | {'median':>9s} | {'paper':>8s} | {'target':>8s} |")
     print(f"|{'-' * 44}|{'-' * 11}|{'-' * 10}|{'-' * 10}|")
     ok = True

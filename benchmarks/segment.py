@@ -36,8 +36,7 @@ def main() -> None:
         segment_scene(capture)  # warm-up: imports and caches
         runs = [segment_scene(capture) for _ in range(args.runs)]
         h, w = capture.points_cam.shape[:2]
-        print(f"\n{path.name}: {w}x{h}, {int(capture.valid_mask().sum())} valid points, "
-              f"median of {args.runs} runs")
+        print(f"\n{path.name}: {w}x{h}, {int(capture.valid_mask().sum())} valid points, median of {args.runs} runs")
         print(f"{'stage':<12} {'median s':>9}   paper {PAPER_SECONDS} s (total)")
         for stage in runs[0].timings:
             print(f"{stage:<12} {statistics.median(r.timings[stage] for r in runs):9.4f}")

@@ -25,20 +25,20 @@ from .reconstruct import grid_mesh, mean_nn_distance
 from .voxel import GridFrame, points_to_grid, unit_plane
 
 MIN_POINTS = 20
-MAX_GRID_DIM = 256            # voxels per side; larger means outliers or a far too dense cloud
+MAX_GRID_DIM = 256  # voxels per side; larger means outliers or a far too dense cloud
 
 # Partial baseline (SPEC §6).
-PARTIAL_LEAF_FACTOR = 4.0     # leaf = 4 x the observed mean nearest-neighbour distance
+PARTIAL_LEAF_FACTOR = 4.0  # leaf = 4 x the observed mean nearest-neighbour distance
 PARTIAL_ISO_LEVEL = 0.5
 SMOOTHING_ITERATIONS = 6
 SMOOTHING_LAMBDA = 0.5
 
 # Mirror baseline: the plane search and its visibility score.
-ORIENTATION_STEP_DEG = 5.0    # coarse candidates about the support-plane normal, over 180 degrees
-OFFSET_STEP_FACTOR = 4.0      # coarse offset step = 4 x the mean nearest-neighbour distance
-REFINE_STEPS = 8              # refinement: +/- 8 steps of a quarter of the coarse ones
-SCORE_POINTS = 1000           # observed points mirrored per candidate (evenly subsampled)
-BIN_FACTOR = 2.0              # depth-map bins: 2 x the mean point spacing, as an angle
+ORIENTATION_STEP_DEG = 5.0  # coarse candidates about the support-plane normal, over 180 degrees
+OFFSET_STEP_FACTOR = 4.0  # coarse offset step = 4 x the mean nearest-neighbour distance
+REFINE_STEPS = 8  # refinement: +/- 8 steps of a quarter of the coarse ones
+SCORE_POINTS = 1000  # observed points mirrored per candidate (evenly subsampled)
+BIN_FACTOR = 2.0  # depth-map bins: 2 x the mean point spacing, as an angle
 DEPTH_TOLERANCE_FACTOR = 3.0  # "in front of" / "behind" the observed surface: 3 x the mean spacing
 # score = violating fraction - SURFACE_REWARD x on-surface fraction - HIDDEN_REWARD x hidden
 #         fraction + DEPTH_PENALTY x mean depth behind the surface / cloud size;
@@ -46,7 +46,7 @@ DEPTH_TOLERANCE_FACTOR = 3.0  # "in front of" / "behind" the observed surface: 3
 COARSE_REWARDS = (0.0, 0.25)
 REFINE_REWARDS = (0.25, 0.15)
 DEPTH_PENALTY = 0.1
-POISSON_DEPTH = 5             # Bohg et al. reconstructed at octree depth 5
+POISSON_DEPTH = 5  # Bohg et al. reconstructed at octree depth 5
 NORMAL_NEIGHBOURS = 20
 
 
@@ -93,9 +93,13 @@ def _reflect_directions(vectors: np.ndarray, normal: np.ndarray) -> np.ndarray:
 # Partial baseline
 
 
-def partial_mesh(points_cam: np.ndarray, *, leaf_factor: float = PARTIAL_LEAF_FACTOR,
-                 iso_level: float = PARTIAL_ISO_LEVEL,
-                 smoothing_iterations: int = SMOOTHING_ITERATIONS) -> trimesh.Trimesh:
+def partial_mesh(
+    points_cam: np.ndarray,
+    *,
+    leaf_factor: float = PARTIAL_LEAF_FACTOR,
+    iso_level: float = PARTIAL_ISO_LEVEL,
+    smoothing_iterations: int = SMOOTHING_ITERATIONS,
+) -> trimesh.Trimesh:
     """The Partial baseline: marching cubes of the observed cloud alone, then smoothing (SPEC §6).
 
     The points are voxelized at a leaf of ``leaf_factor`` x their mean nearest-neighbour distance,
@@ -137,8 +141,14 @@ def hull_mesh(points_cam: np.ndarray) -> trimesh.Trimesh:
     return mesh
 
 
-def _voxel_mesh(points: np.ndarray, leaf: float, iso_level: float, smoothing_iterations: int,
-                fill_cavities: bool = False, table: tuple[np.ndarray, float] | None = None) -> trimesh.Trimesh:
+def _voxel_mesh(
+    points: np.ndarray,
+    leaf: float,
+    iso_level: float,
+    smoothing_iterations: int,
+    fill_cavities: bool = False,
+    table: tuple[np.ndarray, float] | None = None,
+) -> trimesh.Trimesh:
     """Smoothed marching cubes of the points voxelized at ``leaf`` (metres).
 
     ``fill_cavities`` also marks the voxels enclosed by occupied ones; ``table`` ``(normal, d)``
@@ -152,8 +162,11 @@ def _voxel_mesh(points: np.ndarray, leaf: float, iso_level: float, smoothing_ite
         normal, d = table
         # Height of every voxel centre above the plane, built axis by axis (the map is affine).
         centre = (np.arange(frame.dim) + 0.5) * frame.voxel_size
-        height = frame.to_metres(np.zeros((1, 3)))[0] @ normal + d + sum(
-            np.expand_dims(centre * n, tuple(a for a in range(3) if a != axis)) for axis, n in enumerate(normal))
+        height = (
+            frame.to_metres(np.zeros((1, 3)))[0] @ normal
+            + d
+            + sum(np.expand_dims(centre * n, tuple(a for a in range(3) if a != axis)) for axis, n in enumerate(normal))
+        )
         occupancy &= height >= 0
     mesh = grid_mesh(occupancy.astype(np.float32), frame, iso_level)
     return _cotangent_smooth(mesh, smoothing_iterations)
@@ -165,8 +178,10 @@ def _box_frame(points: np.ndarray, leaf: float) -> GridFrame:
     lo = points.min(axis=0)
     dim = int(np.ceil((points.max(axis=0) - lo).max() / leaf)) + 1
     if dim > MAX_GRID_DIM:
-        raise ValueError(f"the cloud spans {dim} voxels of {leaf * 1000:.2f} mm: remove outliers "
-                         f"or downsample it (at most {MAX_GRID_DIM} per side)")
+        raise ValueError(
+            f"the cloud spans {dim} voxels of {leaf * 1000:.2f} mm: remove outliers "
+            f"or downsample it (at most {MAX_GRID_DIM} per side)"
+        )
     return GridFrame.from_corner(lo, leaf, dim)
 
 
@@ -187,22 +202,29 @@ def _cotangent_smooth(mesh: trimesh.Trimesh, iterations: int, lamb: float = SMOO
         rows += [f[:, j], f[:, k]]
         cols += [f[:, k], f[:, j]]
         weights += [w, w]
-    W = sparse.csr_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(len(v), len(v)))
+    W = sparse.csr_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(len(v), len(v))
+    )
     degree = np.asarray(W.sum(axis=1)).ravel()
     # A vertex whose every angle is obtuse keeps its place (row of the identity).
     stuck = degree <= 0
     operator = sparse.diags(np.where(stuck, 0.0, 1.0 / np.where(stuck, 1.0, degree))) @ W + sparse.diags(stuck * 1.0)
-    return trimesh.smoothing.filter_laplacian(mesh.copy(), lamb=lamb, iterations=iterations,
-                                              volume_constraint=False, laplacian_operator=operator.tocsr())
+    return trimesh.smoothing.filter_laplacian(
+        mesh.copy(), lamb=lamb, iterations=iterations, volume_constraint=False, laplacian_operator=operator.tocsr()
+    )
 
 
 # ----------------------------------------------------------------------------------------------
 # Mirror baseline
 
 
-def mirror_mesh(points_cam: np.ndarray, support_plane_cam: np.ndarray | None, *,
-                camera_center: np.ndarray = (0.0, 0.0, 0.0), poisson_depth: int = POISSON_DEPTH) -> trimesh.Trimesh:
+def mirror_mesh(
+    points_cam: np.ndarray,
+    support_plane_cam: np.ndarray | None,
+    *,
+    camera_center: np.ndarray = (0.0, 0.0, 0.0),
+    poisson_depth: int = POISSON_DEPTH,
+) -> trimesh.Trimesh:
     """The Mirror baseline (Bohg et al., ICRA 2011): complete the object by its mirror image.
 
     1. The symmetry plane comes from :func:`find_mirror_plane`; the observed points are mirrored
@@ -254,14 +276,21 @@ def mirror_mesh(points_cam: np.ndarray, support_plane_cam: np.ndarray | None, *,
     if mesh is not None:
         mesh.metadata["reconstruction"] = "poisson"
         return mesh
-    mesh = _voxel_mesh(merged, PARTIAL_LEAF_FACTOR * mean_nn_distance(points), PARTIAL_ISO_LEVEL,
-                       SMOOTHING_ITERATIONS, fill_cavities=True, table=table)
+    mesh = _voxel_mesh(
+        merged,
+        PARTIAL_LEAF_FACTOR * mean_nn_distance(points),
+        PARTIAL_ISO_LEVEL,
+        SMOOTHING_ITERATIONS,
+        fill_cavities=True,
+        table=table,
+    )
     mesh.metadata["reconstruction"] = "voxels"
     return mesh
 
 
-def _poisson_solid(points: np.ndarray, normals: np.ndarray, depth: int,
-                   table: tuple[np.ndarray, float] | None) -> trimesh.Trimesh | None:
+def _poisson_solid(
+    points: np.ndarray, normals: np.ndarray, depth: int, table: tuple[np.ndarray, float] | None
+) -> trimesh.Trimesh | None:
     """Poisson surface of oriented points, cut at ``table`` (kept: its normal's side), largest
     part; None if the surface is not a closed manifold."""
     import manifold3d
@@ -271,8 +300,9 @@ def _poisson_solid(points: np.ndarray, normals: np.ndarray, depth: int,
     cloud.normals = o3d.utility.Vector3dVector(normals)
     # One thread: the multi-threaded solver sums in a varying order, so results would not repeat.
     poisson, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, n_threads=1)
-    solid = manifold3d.Manifold(manifold3d.Mesh(np.asarray(poisson.vertices, np.float32),
-                                                np.asarray(poisson.triangles, np.uint32)))
+    solid = manifold3d.Manifold(
+        manifold3d.Mesh(np.asarray(poisson.vertices, np.float32), np.asarray(poisson.triangles, np.uint32))
+    )
     if solid.status() != manifold3d.Error.NoError or solid.is_empty():
         return None
     if table is not None:
@@ -286,8 +316,9 @@ def _poisson_solid(points: np.ndarray, normals: np.ndarray, depth: int,
     return trimesh.Trimesh(np.asarray(out.vert_properties)[:, :3], np.asarray(out.tri_verts), process=False)
 
 
-def find_mirror_plane(points_cam: np.ndarray, support_plane_cam: np.ndarray | None,
-                      camera_center: np.ndarray = (0.0, 0.0, 0.0)) -> SymmetryPlane:
+def find_mirror_plane(
+    points_cam: np.ndarray, support_plane_cam: np.ndarray | None, camera_center: np.ndarray = (0.0, 0.0, 0.0)
+) -> SymmetryPlane:
     """The symmetry plane perpendicular to the support plane that best explains the view.
 
     Each candidate mirrors an even subsample of the points, which are compared with the observed
@@ -371,8 +402,11 @@ def find_mirror_plane(points_cam: np.ndarray, support_plane_cam: np.ndarray | No
         return np.arange(along.min() - size / 2, along.max() + size / 2 + step, step)
 
     plane, theta = best_of(angles, coarse_positions, COARSE_REWARDS)
-    fine_angles = angles if support_plane_cam is None else (
-        theta + np.radians(ORIENTATION_STEP_DEG / 4) * np.arange(-REFINE_STEPS, REFINE_STEPS + 1))
+    fine_angles = (
+        angles
+        if support_plane_cam is None
+        else (theta + np.radians(ORIENTATION_STEP_DEG / 4) * np.arange(-REFINE_STEPS, REFINE_STEPS + 1))
+    )
     # Refined planes turn about the best plane's point nearest the centroid, so that they stay
     # where the object is.
     anchor = centroid - (centroid @ plane.normal + plane.offset) * plane.normal
@@ -380,8 +414,15 @@ def find_mirror_plane(points_cam: np.ndarray, support_plane_cam: np.ndarray | No
     return best_of(fine_angles, lambda n: anchor @ n + fine_positions, REFINE_REWARDS)[0]
 
 
-def _best_position(sample: np.ndarray, normal: np.ndarray, positions: np.ndarray, visibility: _DepthMap,
-                   size: float, surface_reward: float, hidden_reward: float) -> SymmetryPlane:
+def _best_position(
+    sample: np.ndarray,
+    normal: np.ndarray,
+    positions: np.ndarray,
+    visibility: _DepthMap,
+    size: float,
+    surface_reward: float,
+    hidden_reward: float,
+) -> SymmetryPlane:
     """Best of the planes ``normal . p = position`` for the given positions (one orientation)."""
     along = sample @ normal
     # Mirrored points for every position at once: (positions, points, 3).
@@ -390,8 +431,15 @@ def _best_position(sample: np.ndarray, normal: np.ndarray, positions: np.ndarray
     violation, surface, hidden, behind = violation.mean(1), surface.mean(1), (behind > 0).mean(1), behind.mean(1)
     score = violation - surface_reward * surface - hidden_reward * hidden + DEPTH_PENALTY * behind / size
     i = int(np.argmin(score))
-    return SymmetryPlane(normal.copy(), -float(positions[i]), float(violation[i]), float(surface[i]),
-                         float(hidden[i]), float(behind[i]), float(score[i]))
+    return SymmetryPlane(
+        normal.copy(),
+        -float(positions[i]),
+        float(violation[i]),
+        float(surface[i]),
+        float(hidden[i]),
+        float(behind[i]),
+        float(score[i]),
+    )
 
 
 class _DepthMap:

@@ -105,8 +105,9 @@ class RaycastRenderer:
         self.scene = raycasting_scene(*meshes_world)
         self.bounds = [np.asarray(m.bounds) for m in meshes_world]
 
-    def render(self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True,
-               with_normals: bool = False) -> tuple[np.ndarray, ...]:
+    def render(
+        self, intr: Intrinsics, T_world_cam: np.ndarray, crop_to_objects: bool = True, with_normals: bool = False
+    ) -> tuple[np.ndarray, ...]:
         """Depth (H, W) float32 metres (0 = no hit) and mesh ids (H, W) int32 (-1 = no hit).
 
         With ``with_normals``, a third output: the hit triangles' unit normals (H, W, 3) float32 in

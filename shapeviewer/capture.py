@@ -117,8 +117,9 @@ _MAX_HEADER_LINES = 200
 _MAX_FIT_RMS_PX = 0.5
 
 
-def load_capture(path: str | os.PathLike, intrinsics: Intrinsics | None = None,
-                 max_points: int | None = MAX_CAPTURE_POINTS) -> Capture:
+def load_capture(
+    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_points: int | None = MAX_CAPTURE_POINTS
+) -> Capture:
     """Read a point cloud (``.pcd``, ``.ply``, ``.npy`` of points) or a depth image (``.png``, ``.npy``).
 
     A ``.npy`` holding an (N, 3) or (H, W, 3) array is points (camera frame, metres); a 2-D
@@ -144,9 +145,11 @@ def load_capture(path: str | os.PathLike, intrinsics: Intrinsics | None = None,
     elif suffix in DEPTH_SUFFIXES:
         capture = load_depth(path, intrinsics)
     else:
-        raise CaptureError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; "
-                           f"expected a point cloud ({', '.join(CLOUD_SUFFIXES)}) or a depth image "
-                           f"({', '.join(DEPTH_SUFFIXES)})")
+        raise CaptureError(
+            f"{path}: unsupported file type {suffix or '(no suffix)'!r}; "
+            f"expected a point cloud ({', '.join(CLOUD_SUFFIXES)}) or a depth image "
+            f"({', '.join(DEPTH_SUFFIXES)})"
+        )
     if max_points is not None:
         capture = decimate(capture, max_points)
         if capture.original_points is not None:
@@ -183,9 +186,14 @@ def decimate(capture: Capture, max_points: int) -> Capture:
     def take(a: np.ndarray | None) -> np.ndarray | None:
         return None if a is None else np.ascontiguousarray(a[keep])
 
-    return replace(capture, points_cam=take(capture.points_cam), colors=take(capture.colors),
-                   labels=take(capture.labels), intrinsics=intr,
-                   original_points=n if capture.original_points is None else capture.original_points)
+    return replace(
+        capture,
+        points_cam=take(capture.points_cam),
+        colors=take(capture.colors),
+        labels=take(capture.labels),
+        intrinsics=intr,
+        original_points=n if capture.original_points is None else capture.original_points,
+    )
 
 
 def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = None) -> Capture:
@@ -216,8 +224,10 @@ def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = Non
         if intrinsics is None:
             intrinsics = fit_intrinsics(points, source=str(path))
         elif (intrinsics.width, intrinsics.height) != (w, h):
-            raise CaptureError(f"{path}: the cloud is organized {w}x{h} but the given intrinsics "
-                               f"are for {intrinsics.width}x{intrinsics.height}")
+            raise CaptureError(
+                f"{path}: the cloud is organized {w}x{h} but the given intrinsics "
+                f"are for {intrinsics.width}x{intrinsics.height}"
+            )
     return Capture(points_cam=points, intrinsics=intrinsics, source=str(path))
 
 
@@ -263,12 +273,14 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
         raise CaptureError(f"{path}: {n_points:,} points; at most {MAX_FILE_POINTS:,} can be loaded")
     # Our own header checks above catch what Open3D would only warn about (or fill with zeros).
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        cloud = o3d.io.read_point_cloud(str(path), format=suffix[1:], remove_nan_points=False,
-                                        remove_infinite_points=False)
+        cloud = o3d.io.read_point_cloud(
+            str(path), format=suffix[1:], remove_nan_points=False, remove_infinite_points=False
+        )
     points = np.asarray(cloud.points, dtype=np.float64)
     if len(points) != n_points:
-        raise CaptureError(f"{path}: the header declares {n_points} points but {len(points)} could be read; "
-                           "the file is corrupt")
+        raise CaptureError(
+            f"{path}: the header declares {n_points} points but {len(points)} could be read; the file is corrupt"
+        )
     if not np.isfinite(points).all(axis=1).any():
         raise CaptureError(f"{path}: none of its {n_points} points is finite (all NaN/inf)")
     # Open3D decodes PCL's packed rgb/rgba (float or uint, ascii/binary/compressed) correctly.
@@ -280,13 +292,16 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
         if intrinsics is None:
             intrinsics = fit_intrinsics(points, source=str(path))
         elif (intrinsics.width, intrinsics.height) != (width, height):
-            raise CaptureError(f"{path}: the cloud is organized {width}x{height} but the given intrinsics "
-                               f"are for {intrinsics.width}x{intrinsics.height}")
+            raise CaptureError(
+                f"{path}: the cloud is organized {width}x{height} but the given intrinsics "
+                f"are for {intrinsics.width}x{intrinsics.height}"
+            )
     return Capture(points_cam=points, colors=colors, intrinsics=intrinsics, source=str(path))
 
 
-def load_depth(path: str | os.PathLike, intrinsics: Intrinsics | None = None,
-               depth_scale: float | None = None) -> Capture:
+def load_depth(
+    path: str | os.PathLike, intrinsics: Intrinsics | None = None, depth_scale: float | None = None
+) -> Capture:
     """Read a depth image and back-project it into an organized (H, W, 3) camera-frame cloud.
 
     Args:
@@ -348,8 +363,9 @@ def fit_intrinsics(points_cam: np.ndarray, source: str = "cloud") -> Intrinsics 
     fy, cy = np.polyfit(b, v, 1)
     rms = float(np.sqrt(np.mean((fx * a + cx - u) ** 2 + (fy * b + cy - v) ** 2)))
     if rms > _MAX_FIT_RMS_PX:
-        log.warning("%s: the points do not project onto their pixels (pinhole fit RMS %.2f px), intrinsics unknown",
-                    source, rms)
+        log.warning(
+            "%s: the points do not project onto their pixels (pinhole fit RMS %.2f px), intrinsics unknown", source, rms
+        )
         return None
     log.info("%s: fitted intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f (RMS %.3f px)", source, fx, fy, cx, cy, rms)
     return Intrinsics(w, h, float(fx), float(fy), float(cx), float(cy))
@@ -384,8 +400,9 @@ def _header_lines(path: Path, f, last_key: str) -> tuple[dict[str, list[str]], l
         keys[words[0]] = words[1:]
         if words[0] == last_key:
             return keys, lines
-    raise CaptureError(f"{path}: corrupt or not a {path.suffix[1:].upper()} file: the header never reaches its "
-                       f"{last_key!r} line")
+    raise CaptureError(
+        f"{path}: corrupt or not a {path.suffix[1:].upper()} file: the header never reaches its {last_key!r} line"
+    )
 
 
 def _header_ints(path: Path, keys: dict[str, list[str]], key: str, n: int | None = None) -> list[int]:
@@ -397,8 +414,9 @@ def _header_ints(path: Path, keys: dict[str, list[str]], key: str, n: int | None
     except ValueError:
         raise CaptureError(f"{path}: corrupt header: {key} {' '.join(values)!r} is not a list of integers") from None
     if (n is not None and len(ints) != n) or any(i < 0 for i in ints):
-        raise CaptureError(f"{path}: corrupt header: {key} {' '.join(values)!r} (expected {n or 'some'} "
-                           "non-negative integers)")
+        raise CaptureError(
+            f"{path}: corrupt header: {key} {' '.join(values)!r} (expected {n or 'some'} non-negative integers)"
+        )
     return ints
 
 
@@ -409,8 +427,7 @@ def _pcd_layout(path: Path) -> tuple[int, int, int]:
         data_offset = f.tell()
         fields = keys.get("FIELDS", [])
         if not {"x", "y", "z"} <= set(fields):
-            raise CaptureError(f"{path}: corrupt header or not a point cloud: FIELDS {' '.join(fields)!r} "
-                               "lacks x y z")
+            raise CaptureError(f"{path}: corrupt header or not a point cloud: FIELDS {' '.join(fields)!r} lacks x y z")
         sizes = _header_ints(path, keys, "SIZE", len(fields))
         counts = _header_ints(path, keys, "COUNT", len(fields)) if "COUNT" in keys else [1] * len(fields)
         if len(keys.get("TYPE", [])) != len(fields):
@@ -418,8 +435,7 @@ def _pcd_layout(path: Path) -> tuple[int, int, int]:
         (width,), (height,) = _header_ints(path, keys, "WIDTH", 1), _header_ints(path, keys, "HEIGHT", 1)
         (n_points,) = _header_ints(path, keys, "POINTS", 1) if "POINTS" in keys else (width * height,)
         if n_points != width * height:
-            raise CaptureError(f"{path}: corrupt header: POINTS {n_points} is not WIDTH x HEIGHT "
-                               f"({width} x {height})")
+            raise CaptureError(f"{path}: corrupt header: POINTS {n_points} is not WIDTH x HEIGHT ({width} x {height})")
         if n_points == 0:
             raise CaptureError(f"{path}: the cloud has no points")
         kind = (keys["DATA"] or ["?"])[0]
@@ -432,16 +448,19 @@ def _pcd_layout(path: Path) -> tuple[int, int, int]:
                 raise CaptureError(f"{path}: truncated: {rows} of {n_points} point rows are present")
         elif kind == "binary":
             if available < needed:
-                raise CaptureError(f"{path}: truncated: {available} bytes of binary data, {n_points} points "
-                                   f"need {needed}")
+                raise CaptureError(
+                    f"{path}: truncated: {available} bytes of binary data, {n_points} points need {needed}"
+                )
         elif kind == "binary_compressed":
             sizes_raw = f.read(8)
             if len(sizes_raw) < 8:
                 raise CaptureError(f"{path}: truncated: the compressed data block is missing")
             packed, unpacked = np.frombuffer(sizes_raw, dtype="<u4")
             if unpacked != needed:
-                raise CaptureError(f"{path}: corrupt: the compressed block unpacks to {unpacked} bytes, "
-                                   f"{n_points} points need {needed}")
+                raise CaptureError(
+                    f"{path}: corrupt: the compressed block unpacks to {unpacked} bytes, "
+                    f"{n_points} points need {needed}"
+                )
             if available - 8 < packed:
                 raise CaptureError(f"{path}: truncated: {available - 8} of {packed} compressed bytes are present")
         else:
@@ -449,8 +468,24 @@ def _pcd_layout(path: Path) -> tuple[int, int, int]:
     return n_points, width, height
 
 
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_SIZES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 def _ply_layout(path: Path) -> tuple[int, int, int]:
@@ -495,8 +530,9 @@ def _ply_layout(path: Path) -> tuple[int, int, int]:
             body = f.read().strip()
             rows = body.count(b"\n") + 1 if body else 0
             if rows < rows_needed:
-                raise CaptureError(f"{path}: truncated: {rows} of the {rows_needed} data rows up to the last "
-                                   "vertex are present")
+                raise CaptureError(
+                    f"{path}: truncated: {rows} of the {rows_needed} data rows up to the last vertex are present"
+                )
         elif all(e[2] is not None for e in elements[: at + 1]):  # fixed-size records: sizes are known
             needed = sum(e[1] * e[2] for e in elements[: at + 1])
             available = os.fstat(f.fileno()).st_size - data_offset
@@ -525,8 +561,9 @@ def _read_png_depth(path: Path) -> np.ndarray:
     except Exception as e:  # PIL raises OSError, SyntaxError, ValueError... for broken files
         raise CaptureError(f"{path}: not a readable PNG image ({e})") from None
     if not mode.startswith("I"):
-        raise CaptureError(f"{path}: a {mode} image, not a depth image; expected a single-channel 16-bit PNG "
-                           "of millimetres")
+        raise CaptureError(
+            f"{path}: a {mode} image, not a depth image; expected a single-channel 16-bit PNG of millimetres"
+        )
     return depth
 
 
@@ -539,7 +576,9 @@ def _read_npy_depth(path: Path) -> np.ndarray:
         shape = getattr(depth, "shape", type(depth).__name__)
         raise CaptureError(f"{path}: expected a 2-D (H, W) depth array in metres, got {shape}")
     if depth.size > MAX_FILE_POINTS:
-        raise CaptureError(f"{path}: {depth.shape[1]}x{depth.shape[0]} pixels; at most {MAX_FILE_POINTS:,} can be loaded")
+        raise CaptureError(
+            f"{path}: {depth.shape[1]}x{depth.shape[0]} pixels; at most {MAX_FILE_POINTS:,} can be loaded"
+        )
     if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
         raise CaptureError(f"{path}: expected a numeric depth array, got dtype {depth.dtype}")
     return depth
@@ -549,8 +588,10 @@ def _depth_intrinsics(path: Path, shape: tuple[int, int], intrinsics: Intrinsics
     h, w = shape
     if intrinsics is not None:
         if (intrinsics.width, intrinsics.height) != (w, h):
-            raise CaptureError(f"{path}: the depth image is {w}x{h} but the given intrinsics are for "
-                               f"{intrinsics.width}x{intrinsics.height}")
+            raise CaptureError(
+                f"{path}: the depth image is {w}x{h} but the given intrinsics are for "
+                f"{intrinsics.width}x{intrinsics.height}"
+            )
         return intrinsics
     k = Intrinsics.kinect()
     if (k.width, k.height) == (w, h):
@@ -558,6 +599,15 @@ def _depth_intrinsics(path: Path, shape: tuple[int, int], intrinsics: Intrinsics
     sx, sy = w / k.width, h / k.height
     # Pixel centres sit at integer coordinates, so the principal point scales about -0.5.
     scaled = Intrinsics(w, h, k.fx * sx, k.fy * sy, (k.cx + 0.5) * sx - 0.5, (k.cy + 0.5) * sy - 0.5)
-    log.info("%s: %dx%d depth image and no intrinsics given: using the Kinect's scaled to that size "
-             "(fx=%.1f fy=%.1f cx=%.1f cy=%.1f)", path, w, h, scaled.fx, scaled.fy, scaled.cx, scaled.cy)
+    log.info(
+        "%s: %dx%d depth image and no intrinsics given: using the Kinect's scaled to that size "
+        "(fx=%.1f fy=%.1f cx=%.1f cy=%.1f)",
+        path,
+        w,
+        h,
+        scaled.fx,
+        scaled.fy,
+        scaled.cx,
+        scaled.cy,
+    )
     return scaled

@@ -1,15 +1,15 @@
 """The ``shapeviewer`` command: the viewer's jobs, headless.
 
-    shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR]
-    shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
-    shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
-    shapeviewer objects
-    shapeviewer generate --out DIR [--views N] [--backend process|ray]
-    shapeviewer train --data DIR --run DIR [--steps N]
-    shapeviewer evaluate-grids --data DIR [--weights PATH]
-    shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
-                         [--workers N] [--backend process|ray]
-                         [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
+shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR]
+shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
+shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
+shapeviewer objects
+shapeviewer generate --out DIR [--views N] [--backend process|ray]
+shapeviewer train --data DIR --run DIR [--steps N]
+shapeviewer evaluate-grids --data DIR [--weights PATH]
+shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
+                     [--workers N] [--backend process|ray]
+                     [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
 """
 
 from __future__ import annotations
@@ -42,8 +42,14 @@ def _intrinsics(args, shape=None):
     if all(getattr(args, k) is None for k in ("fx", "fy", "cx", "cy")):
         return None
     base = Intrinsics.kinect()
-    return Intrinsics(base.width, base.height, args.fx or base.fx, args.fy or args.fx or base.fy,
-                      base.cx if args.cx is None else args.cx, base.cy if args.cy is None else args.cy)
+    return Intrinsics(
+        base.width,
+        base.height,
+        args.fx or base.fx,
+        args.fy or args.fx or base.fy,
+        base.cx if args.cx is None else args.cx,
+        base.cy if args.cy is None else args.cy,
+    )
 
 
 def load_input(spec: str, seed: int = 0, intrinsics=None):
@@ -88,8 +94,16 @@ def cmd_serve(args) -> int:
     from .viewer import serve
 
     try:
-        serve(host=args.host, port=args.port, seed=args.seed, cloud=args.cloud, weights=args.weights,
-              intrinsics=_intrinsics(args), results=args.results, allow_hosts=tuple(args.allow_host))
+        serve(
+            host=args.host,
+            port=args.port,
+            seed=args.seed,
+            cloud=args.cloud,
+            weights=args.weights,
+            intrinsics=_intrinsics(args),
+            results=args.results,
+            allow_hosts=tuple(args.allow_host),
+        )
     except OSError as e:  # e.g. a bad --cloud path: say so instead of a traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -111,16 +125,24 @@ def cmd_complete(args) -> int:
     seg = segment_scene(capture)
     T_world_cam, _ = world_frame(capture, seg)
     if not seg.segments:
-        raise CLIError(f"{capture.source}: no segments found (nothing stands on a support plane among its "
-                       f"{int(capture.valid_mask().sum()):,} valid points); nothing to complete")
+        raise CLIError(
+            f"{capture.source}: no segments found (nothing stands on a support plane among its "
+            f"{int(capture.valid_mask().sum()):,} valid points); nothing to complete"
+        )
     wanted = seg.segments if args.segment == "all" else [s for s in seg.segments if str(s.id) == args.segment]
     if not wanted:
-        raise CLIError(f"no segment {args.segment!r}; the capture has segments "
-                       f"{', '.join(str(s.id) for s in seg.segments)}")
+        raise CLIError(
+            f"no segment {args.segment!r}; the capture has segments {', '.join(str(s.id) for s in seg.segments)}"
+        )
     completer = load_completer(args.weights)
-    report = {"input": capture.source, "load_seconds": t_load, "segmentation": seg.timings,
-              "model": {"arch": completer.arch, "trained": completer.trained, "weights": completer.source},
-              "T_world_cam": np.asarray(T_world_cam).tolist(), "segments": []}
+    report = {
+        "input": capture.source,
+        "load_seconds": t_load,
+        "segmentation": seg.timings,
+        "model": {"arch": completer.arch, "trained": completer.trained, "weights": completer.source},
+        "T_world_cam": np.asarray(T_world_cam).tolist(),
+        "segments": [],
+    }
     usable = []
     for s in wanted:
         entry = {"id": s.id, "label": s.label, "points": int(len(s.points_cam))}
@@ -130,24 +152,37 @@ def cmd_complete(args) -> int:
         except SegmentTooSmallError as e:
             entry["error"] = str(e)
         report["segments"].append(entry)
-    completions = complete_points([s.points_cam for s in usable], completer, [s.id for s in usable],
-                                  support_plane=seg.plane_cam)
+    completions = complete_points(
+        [s.points_cam for s in usable], completer, [s.id for s in usable], support_plane=seg.plane_cam
+    )
     by_id = {e["id"]: e for e in report["segments"]}
     for s, c in zip(usable, completions):
         e = by_id[s.id]
-        e.update({"grid_frame": c.frame.to_dict(), "timings": c.timings, "input_voxels": int(c.grid_in.sum()),
-                  "output_voxels": int(c.grid_out.sum())})
-        (out / f"segment_{s.id}_points.ply").write_bytes(export.points_ply_bytes(s.points_cam, frame=args.frame,
-                                                                                 T_world_cam=T_world_cam))
-        (out / f"segment_{s.id}_grids.npz").write_bytes(export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame,
-                                                                               T_world_cam))
+        e.update(
+            {
+                "grid_frame": c.frame.to_dict(),
+                "timings": c.timings,
+                "input_voxels": int(c.grid_in.sum()),
+                "output_voxels": int(c.grid_out.sum()),
+            }
+        )
+        (out / f"segment_{s.id}_points.ply").write_bytes(
+            export.points_ply_bytes(s.points_cam, frame=args.frame, T_world_cam=T_world_cam)
+        )
+        (out / f"segment_{s.id}_grids.npz").write_bytes(
+            export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T_world_cam)
+        )
         if c.fast_mesh is None:
             e["error"] = c.error
             continue
         path = out / f"segment_{s.id}_fast.{args.format}"
         path.write_bytes(export.mesh_bytes(c.fast_mesh, args.format, args.frame, T_world_cam))
-        e["mesh"] = {"fast": path.name, "frame": args.frame, "watertight": bool(c.fast_mesh.is_watertight),
-                     "volume_m3": float(c.fast_mesh.volume)}
+        e["mesh"] = {
+            "fast": path.name,
+            "frame": args.frame,
+            "watertight": bool(c.fast_mesh.is_watertight),
+            "volume_m3": float(c.fast_mesh.volume),
+        }
         if args.mode == "detailed":
             steps = {}
             t0 = time.perf_counter()
@@ -156,8 +191,13 @@ def cmd_complete(args) -> int:
             e["detailed_steps"] = steps
             path = out / f"segment_{s.id}_detailed.{args.format}"
             path.write_bytes(export.mesh_bytes(mesh, args.format, args.frame, T_world_cam))
-            e["mesh"].update({"detailed": path.name, "detailed_watertight": bool(mesh.is_watertight),
-                              "detailed_volume_m3": float(mesh.volume)})
+            e["mesh"].update(
+                {
+                    "detailed": path.name,
+                    "detailed_watertight": bool(mesh.is_watertight),
+                    "detailed_volume_m3": float(mesh.volume),
+                }
+            )
     (out / "report.json").write_text(json.dumps(report, indent=1))
     done = sum("mesh" in e for e in report["segments"])
     print(f"{done}/{len(report['segments'])} segments completed -> {out}/report.json")
@@ -174,8 +214,15 @@ def cmd_grasp(args) -> int:
         raise CLIError(f"--budget must be a positive number of seconds, got {args.budget}")
     from .grasp.serialize import plan_mesh_file
 
-    grasps = plan_mesh_file(args.mesh, args.out, hand=args.hand, n_grasps=args.n, seed=args.seed,
-                            on_table=not args.no_table, budget_seconds=args.budget)
+    grasps = plan_mesh_file(
+        args.mesh,
+        args.out,
+        hand=args.hand,
+        n_grasps=args.n,
+        seed=args.seed,
+        on_table=not args.no_table,
+        budget_seconds=args.budget,
+    )
     best = max((g.epsilon for g in grasps), default=float("nan"))
     print(f"{len(grasps)} grasps (best epsilon {best:.3f}) -> {args.out}")
     return 0
@@ -192,8 +239,15 @@ def cmd_objects(args) -> int:
         print(f"catalogue index -> {args.write_index}")
     rows = catalogue.catalogue()
     if args.json:
-        print(json.dumps([{"name": e.name, "split": e.split, "source": e.source,
-                           "size_m": [round(x, 4) for x in e.extents]} for e in rows], indent=1))
+        print(
+            json.dumps(
+                [
+                    {"name": e.name, "split": e.split, "source": e.source, "size_m": [round(x, 4) for x in e.extents]}
+                    for e in rows
+                ],
+                indent=1,
+            )
+        )
         return 0
     print(f"{'name':34s} {'split':14s} {'source':9s} size (cm)")
     for e in rows:
@@ -206,9 +260,13 @@ def cmd_objects(args) -> int:
 def cmd_generate(args) -> int:
     from .generate import GenerationConfig, generate
 
-    r = generate(args.out, GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed,
-                                            scenes=args.scenes),
-                 objects=args.objects, workers=args.workers, backend=args.backend)
+    r = generate(
+        args.out,
+        GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed, scenes=args.scenes),
+        objects=args.objects,
+        workers=args.workers,
+        backend=args.backend,
+    )
     print(json.dumps({k: v for k, v in r.items() if k != "errors"}, indent=1))
     for e in r["errors"]:
         print(f"error: {e['name']}: {e['error']}", file=sys.stderr)
@@ -218,9 +276,18 @@ def cmd_generate(args) -> int:
 def cmd_train(args) -> int:
     from .train import TrainConfig, train
 
-    cfg = TrainConfig(arch=args.arch, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                      eval_every=args.eval_every, eval_views=args.eval_views, seed=args.seed, width=args.width,
-                      in_channels=args.in_channels, init=args.init)
+    cfg = TrainConfig(
+        arch=args.arch,
+        steps=args.steps,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        eval_every=args.eval_every,
+        eval_views=args.eval_views,
+        seed=args.seed,
+        width=args.width,
+        in_channels=args.in_channels,
+        init=args.init,
+    )
     print(json.dumps(train(args.data, args.run, cfg), indent=1))
     return 0
 
@@ -249,18 +316,32 @@ def cmd_evaluate(args) -> int:
 
     grasps = None
     if args.grasps:
-        grasps = GraspOptions(methods=tuple(args.grasp_methods or GRASP_METHODS), hand=args.hand,
-                              n_grasps=args.n_grasps, budget_seconds=args.grasp_budget)
-    r = evaluate(args.out, n_per_set=args.views_per_set, seed=args.seed, weights=args.weights,
-                 workers=args.workers, backend=args.backend, progress=not args.no_progress, grasps=grasps,
-                 views=args.views)
+        grasps = GraspOptions(
+            methods=tuple(args.grasp_methods or GRASP_METHODS),
+            hand=args.hand,
+            n_grasps=args.n_grasps,
+            budget_seconds=args.grasp_budget,
+        )
+    r = evaluate(
+        args.out,
+        n_per_set=args.views_per_set,
+        seed=args.seed,
+        weights=args.weights,
+        workers=args.workers,
+        backend=args.backend,
+        progress=not args.no_progress,
+        grasps=grasps,
+        views=args.views,
+    )
     print(r["tables_md"])
     print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="shapeviewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="shapeviewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("-v", "--verbose", action="store_true")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -268,11 +349,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1", help="interface to listen on (0.0.0.0 for all)")
     s.add_argument("--port", type=int, default=8080, help="port (the next free one is used if busy)")
     s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
-    s.add_argument("--results", default=None, metavar="DIR",
-                   help="results folder of `shapeviewer evaluate` for the Dataset tab (default: a small sample "
-                        "store, built in the user cache on first run)")
-    s.add_argument("--allow-host", action="append", default=[], metavar="NAME",
-                   help="another name browsers reach this server by (besides localhost and --host); repeatable")
+    s.add_argument(
+        "--results",
+        default=None,
+        metavar="DIR",
+        help="results folder of `shapeviewer evaluate` for the Dataset tab (default: a small sample "
+        "store, built in the user cache on first run)",
+    )
+    s.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="another name browsers reach this server by (besides localhost and --host); repeatable",
+    )
     _add_input_args(s)
     s.set_defaults(func=cmd_serve)
 
@@ -298,17 +388,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
     s.add_argument("--json", action="store_true")
-    s.add_argument("--write-index", default=None, metavar="PATH",
-                   help="process every mesh again and write the index (static_assets/catalogue.json ships one)")
+    s.add_argument(
+        "--write-index",
+        default=None,
+        metavar="PATH",
+        help="process every mesh again and write the index (static_assets/catalogue.json ships one)",
+    )
     s.set_defaults(func=cmd_objects)
 
     s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
     s.add_argument("--out", required=True)
-    s.add_argument("--views", type=int, default=None,
-                   help="views per object (default: all 726 sphere views, 32 tabletop views)")
-    s.add_argument("--scenes", default="sphere", choices=["sphere", "tabletop"],
-                   help="sphere: the paper's floating views; tabletop: the object on a table among neighbours, "
-                        "a robot's Kinect or RealSense, segmented by the app")
+    s.add_argument(
+        "--views", type=int, default=None, help="views per object (default: all 726 sphere views, 32 tabletop views)"
+    )
+    s.add_argument(
+        "--scenes",
+        default="sphere",
+        choices=["sphere", "tabletop"],
+        help="sphere: the paper's floating views; tabletop: the object on a table among neighbours, "
+        "a robot's Kinect or RealSense, segmented by the app",
+    )
     s.add_argument("--objects", nargs="*", default=None, help="catalogue names (default: all)")
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument("--workers", type=int, default=None)
@@ -326,8 +425,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--eval-every", type=int, default=500)
     s.add_argument("--eval-views", type=int, default=200)
     s.add_argument("--width", type=int, default=None)
-    s.add_argument("--in-channels", type=int, default=3, choices=[1, 3],
-                   help="unet3d inputs: 1 = occupancy (the paper), 3 = + seen free space and support plane")
+    s.add_argument(
+        "--in-channels",
+        type=int,
+        default=3,
+        choices=[1, 3],
+        help="unet3d inputs: 1 = occupancy (the paper), 3 = + seen free space and support plane",
+    )
     s.add_argument("--init", default=None, help="weights to start from (a 1-channel unet3d is widened)")
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)
@@ -344,25 +448,49 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")
     s.add_argument("--out", required=True, help="results folder (resumable: finished views are skipped)")
     s.add_argument("--views-per-set", type=int, default=50, help="views per evaluation set (the paper: 50)")
-    s.add_argument("--views", default="paper", choices=["paper", "tabletop"],
-                   help="paper: the paper's three view sets of floating objects; tabletop: objects on a table "
-                        "among neighbours, a robot's Kinect or RealSense, segmented by the app")
+    s.add_argument(
+        "--views",
+        default="paper",
+        choices=["paper", "tabletop"],
+        help="paper: the paper's three view sets of floating objects; tabletop: objects on a table "
+        "among neighbours, a robot's Kinect or RealSense, segmented by the app",
+    )
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
-    s.add_argument("--workers", type=int, default=None,
-                   help="processes, or with --backend ray the CPUs of a local Ray instance (default: all cores)")
-    s.add_argument("--backend", default="process", choices=BACKENDS,
-                   help="process: local processes; ray: a Ray cluster (RAY_ADDRESS, else a local instance)")
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes, or with --backend ray the CPUs of a local Ray instance (default: all cores)",
+    )
+    s.add_argument(
+        "--backend",
+        default="process",
+        choices=BACKENDS,
+        help="process: local processes; ray: a Ray cluster (RAY_ADDRESS, else a local instance)",
+    )
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
-    s.add_argument("--grasps", action="store_true",
-                   help="also Tables IV/V: plan grasps on each completion, execute them on the true mesh "
-                        "(saved completions are reused)")
+    s.add_argument(
+        "--grasps",
+        action="store_true",
+        help="also Tables IV/V: plan grasps on each completion, execute them on the true mesh "
+        "(saved completions are reused)",
+    )
     s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
     s.add_argument("--n-grasps", type=int, default=20, help="grasps planned per view and method (the paper: 20)")
-    s.add_argument("--grasp-budget", type=float, default=None,
-                   help="planning time limit per view and method, seconds (default: the full, deterministic search)")
-    s.add_argument("--grasp-methods", nargs="+", default=None, metavar="METHOD",
-                   help="completions to grasp, of Partial Mirror Hull Ours-fast Ours-detailed (default: all five)")
+    s.add_argument(
+        "--grasp-budget",
+        type=float,
+        default=None,
+        help="planning time limit per view and method, seconds (default: the full, deterministic search)",
+    )
+    s.add_argument(
+        "--grasp-methods",
+        nargs="+",
+        default=None,
+        metavar="METHOD",
+        help="completions to grasp, of Partial Mirror Hull Ours-fast Ours-detailed (default: all five)",
+    )
     s.set_defaults(func=cmd_evaluate)
     return p
 
@@ -393,8 +521,9 @@ def main(argv: list[str] | None = None) -> int:
     from .interrupt import interrupt_watch, kill_descendants
 
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     if args.command != "objects":
         _import_pybullet_quietly()
     created: list[Path] = []

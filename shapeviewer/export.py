@@ -27,8 +27,9 @@ def to_frame(points_cam: np.ndarray, frame: str, T_world_cam: np.ndarray) -> np.
     raise ValueError(f"unknown frame {frame!r} (use 'camera' or 'world')")
 
 
-def mesh_bytes(mesh_cam: trimesh.Trimesh, fmt: str, frame: str = "world",
-               T_world_cam: np.ndarray | None = None) -> bytes:
+def mesh_bytes(
+    mesh_cam: trimesh.Trimesh, fmt: str, frame: str = "world", T_world_cam: np.ndarray | None = None
+) -> bytes:
     """A camera-frame mesh encoded as PLY, OBJ, STL or GLB in the camera or world frame (metres)."""
     fmt = fmt.lower().lstrip(".")
     if fmt not in MESH_FORMATS:
@@ -41,25 +42,35 @@ def mesh_bytes(mesh_cam: trimesh.Trimesh, fmt: str, frame: str = "world",
     return data.encode() if isinstance(data, str) else data
 
 
-def points_ply_bytes(points_cam: np.ndarray, colors: np.ndarray | None = None, frame: str = "world",
-                     T_world_cam: np.ndarray | None = None) -> bytes:
+def points_ply_bytes(
+    points_cam: np.ndarray,
+    colors: np.ndarray | None = None,
+    frame: str = "world",
+    T_world_cam: np.ndarray | None = None,
+) -> bytes:
     """Points (and uint8 RGB colours) as a binary PLY in the camera or world frame (metres)."""
     T = np.eye(4) if T_world_cam is None else T_world_cam
-    cloud = trimesh.PointCloud(to_frame(points_cam, frame, T),
-                               colors=None if colors is None else np.asarray(colors, np.uint8))
+    cloud = trimesh.PointCloud(
+        to_frame(points_cam, frame, T), colors=None if colors is None else np.asarray(colors, np.uint8)
+    )
     return cloud.export(file_type="ply")
 
 
-def grids_npz_bytes(grid_in: np.ndarray, probabilities: np.ndarray, frame: GridFrame,
-                    T_world_cam: np.ndarray | None = None) -> bytes:
+def grids_npz_bytes(
+    grid_in: np.ndarray, probabilities: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray | None = None
+) -> bytes:
     """CNN input and output grids with their frame: ``grid_in`` (bool), ``probabilities`` (float32),
     ``grid_to_camera`` (4x4, grid coordinates -> camera metres; voxel (i,j,k) centre at (i,j,k)+0.5),
     ``T_world_cam`` (4x4) and ``frame_json``."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, grid_in=np.asarray(grid_in, bool), probabilities=np.asarray(probabilities, np.float32),
-                        grid_to_camera=frame.grid_to_camera(),
-                        T_world_cam=np.eye(4) if T_world_cam is None else np.asarray(T_world_cam),
-                        frame_json=np.array(json.dumps(frame.to_dict())))
+    np.savez_compressed(
+        buf,
+        grid_in=np.asarray(grid_in, bool),
+        probabilities=np.asarray(probabilities, np.float32),
+        grid_to_camera=frame.grid_to_camera(),
+        T_world_cam=np.eye(4) if T_world_cam is None else np.asarray(T_world_cam),
+        frame_json=np.array(json.dumps(frame.to_dict())),
+    )
     return buf.getvalue()
 
 

@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .sim import catalogue
 from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
 from .fileio import atomic_write
+from .sim import catalogue
 from .voxel import GRID_DIM, context_grids, partial_to_grid, points_to_grid, solid_grid, surface_samples
 
 log = logging.getLogger(__name__)
@@ -97,8 +97,9 @@ def noise_seed(seed: int, view: int) -> list[int]:
     return [seed, int(view), 7]
 
 
-def render_view(renderer: RaycastRenderer, T_cam_obj: np.ndarray, intr: Intrinsics,
-                noise: KinectNoise | None, seed) -> tuple[np.ndarray, np.ndarray]:
+def render_view(
+    renderer: RaycastRenderer, T_cam_obj: np.ndarray, intr: Intrinsics, noise: KinectNoise | None, seed
+) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) metres of an object at ``T_cam_obj``: ``(ideal, measured)``.
 
     ``measured`` has the sensor model applied (the same array as ``ideal`` without noise).
@@ -132,21 +133,36 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
     stack = lambda k, shape, dtype: np.array([r[k] for r in rows], dtype).reshape(shape)  # noqa: E731
     n = len(rows)
     buf = io.BytesIO()
-    np.savez(buf, x=stack("x", (n, packed), np.uint8), y=stack("y", (n, packed), np.uint8),
-             free=stack("free", (n, packed), np.uint8), below=stack("below", (n, packed), np.uint8),
-             views=stack("view", (n,), np.int32), center=stack("center", (n, 3), np.float64),
-             voxel_size=stack("voxel_size", (n,), np.float64), T_cam_obj=stack("T", (n, 3, 4), np.float64),
-             plane=stack("plane", (n, 4), np.float64))
+    np.savez(
+        buf,
+        x=stack("x", (n, packed), np.uint8),
+        y=stack("y", (n, packed), np.uint8),
+        free=stack("free", (n, packed), np.uint8),
+        below=stack("below", (n, packed), np.uint8),
+        views=stack("view", (n,), np.int32),
+        center=stack("center", (n, 3), np.float64),
+        voxel_size=stack("voxel_size", (n,), np.float64),
+        T_cam_obj=stack("T", (n, 3, 4), np.float64),
+        plane=stack("plane", (n, 4), np.float64),
+    )
     atomic_write(shard, buf.getvalue())
     return {"name": name, "kept": n, "rejected": rejected, "seconds": time.perf_counter() - t0, "skipped": False}
 
 
-def _example(view: int, x: np.ndarray, y: np.ndarray, context: np.ndarray, frame, T: np.ndarray,
-             plane: np.ndarray | None) -> dict:
-    return {"view": int(view), "x": np.packbits(x.ravel()), "y": np.packbits(y.ravel()),
-            "free": np.packbits(context[0].ravel()), "below": np.packbits(context[1].ravel()),
-            "center": frame.center, "voxel_size": frame.voxel_size, "T": T[:3, :],
-            "plane": np.full(4, np.nan) if plane is None else np.asarray(plane, np.float64)}
+def _example(
+    view: int, x: np.ndarray, y: np.ndarray, context: np.ndarray, frame, T: np.ndarray, plane: np.ndarray | None
+) -> dict:
+    return {
+        "view": int(view),
+        "x": np.packbits(x.ravel()),
+        "y": np.packbits(y.ravel()),
+        "free": np.packbits(context[0].ravel()),
+        "below": np.packbits(context[1].ravel()),
+        "center": frame.center,
+        "voxel_size": frame.voxel_size,
+        "T": T[:3, :],
+        "plane": np.full(4, np.nan) if plane is None else np.asarray(plane, np.float64),
+    }
 
 
 def _sphere_examples(name: str, config: GenerationConfig):
@@ -198,8 +214,9 @@ def _tabletop_examples(name: str, config: GenerationConfig):
         if (x & ndimage.binary_dilation(y)).sum() < MIN_X_INSIDE_Y * x.sum():
             yield "outside"
             continue
-        yield _example(view, x, y, context_grids(v.points_cam, frame, support_plane=v.plane_cam), frame,
-                       v.T_cam_obj, v.plane_cam)
+        yield _example(
+            view, x, y, context_grids(v.points_cam, frame, support_plane=v.plane_cam), frame, v.T_cam_obj, v.plane_cam
+        )
 
 
 def _task(args):
@@ -211,8 +228,14 @@ def _task(args):
         return {"name": name, "kept": 0, "error": repr(e), "skipped": False}
 
 
-def generate(out_dir: str | Path, config: GenerationConfig = GenerationConfig(), objects: list[str] | None = None,
-             workers: int | None = None, backend: str = "process", progress: bool = True) -> dict:
+def generate(
+    out_dir: str | Path,
+    config: GenerationConfig = GenerationConfig(),
+    objects: list[str] | None = None,
+    workers: int | None = None,
+    backend: str = "process",
+    progress: bool = True,
+) -> dict:
     """Generate shards for many objects (all catalogue objects by default) and write the manifest.
 
     ``backend`` is ``process`` (all cores of this machine) or ``ray`` (a Ray cluster, ``ray.init()``
@@ -258,9 +281,14 @@ def generate(out_dir: str | Path, config: GenerationConfig = GenerationConfig(),
     seconds = time.perf_counter() - t0
     manifest = write_manifest(out_dir, config)
     new_views = sum(r.get("kept", 0) for r in results if not r.get("skipped"))
-    return {"objects": len(results), "errors": [r for r in results if "error" in r], "seconds": seconds,
-            "new_views": new_views, "views_per_second": new_views / seconds if seconds > 0 else 0.0,
-            "examples": manifest["examples"]}
+    return {
+        "objects": len(results),
+        "errors": [r for r in results if "error" in r],
+        "seconds": seconds,
+        "new_views": new_views,
+        "views_per_second": new_views / seconds if seconds > 0 else 0.0,
+        "examples": manifest["examples"],
+    }
 
 
 def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
@@ -276,9 +304,17 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
             views = z["views"].tolist()
         for v in views:
             examples[catalogue.view_split(name, v)] += 1
-        shards.append({"file": f"shards/{p.name}", "object": name, "split": catalogue.model_split(name), "views": len(views)})
-    manifest = {"version": 1, "grid": GRID_DIM, "orientation_grid": ORIENTATION_GRID,
-                "config": {"views": config.views, "noise": config.noise, "seed": config.seed, "scenes": config.scenes},
-                "camera": Intrinsics.kinect().to_dict(), "examples": examples, "shards": shards}
+        shards.append(
+            {"file": f"shards/{p.name}", "object": name, "split": catalogue.model_split(name), "views": len(views)}
+        )
+    manifest = {
+        "version": 1,
+        "grid": GRID_DIM,
+        "orientation_grid": ORIENTATION_GRID,
+        "config": {"views": config.views, "noise": config.noise, "seed": config.seed, "scenes": config.scenes},
+        "camera": Intrinsics.kinect().to_dict(),
+        "examples": examples,
+        "shards": shards,
+    }
     (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return manifest

@@ -11,7 +11,8 @@ are in pybullet's (x, y, z, w) order. Units: metres.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,8 +35,9 @@ def raycasting_scene(*meshes: trimesh.Trimesh, origin: np.ndarray | None = None)
     scene = o3d.t.geometry.RaycastingScene()
     for mesh in meshes:
         vertices = np.asarray(mesh.vertices) if origin is None else np.asarray(mesh.vertices) - origin
-        scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
-                            o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+        scene.add_triangles(
+            o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
+        )
     return scene
 
 
@@ -68,12 +70,15 @@ def pq_to_pose(pos: Sequence[float], quat: Sequence[float]) -> np.ndarray:
     x, y, z, w = quat
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n if n > 0 else 0.0
-    return np.array([
-        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), pos[0]],
-        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w), pos[1]],
-        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y), pos[2]],
-        [0.0, 0.0, 0.0, 1.0],
-    ], dtype=float)
+    return np.array(
+        [
+            [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), pos[0]],
+            [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w), pos[1]],
+            [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y), pos[2]],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+        dtype=float,
+    )
 
 
 def centre_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:

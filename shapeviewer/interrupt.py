@@ -41,7 +41,7 @@ def descendants(pid: int | None = None) -> list[int]:
         except OSError:  # gone meanwhile
             continue
         # "pid (comm) state ppid ...": comm may hold spaces and parentheses, so split after the last ')'.
-        ppid = int(stat[stat.rindex(")") + 2:].split()[1])
+        ppid = int(stat[stat.rindex(")") + 2 :].split()[1])
         children.setdefault(ppid, []).append(int(entry.name))
     out: list[int] = []
     todo = [root]
@@ -108,8 +108,7 @@ def interrupt_watch(hard_exit_seconds: float = HARD_EXIT_SECONDS) -> Iterator[No
     signal.signal(signal.SIGTERM, raise_interrupt)
     if previous_int in (signal.SIG_IGN, signal.SIG_DFL, None):
         signal.signal(signal.SIGINT, signal.default_int_handler)
-    watcher = threading.Thread(target=_watch, args=(read_fd, hard_exit_seconds), name="interrupt-watch",
-                               daemon=True)
+    watcher = threading.Thread(target=_watch, args=(read_fd, hard_exit_seconds), name="interrupt-watch", daemon=True)
     watcher.start()
     try:
         yield

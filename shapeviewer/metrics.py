@@ -32,8 +32,7 @@ _KDE_INTERVALS = 10_000
 _LOG_FLOOR = 1e-11
 
 
-def jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution: int = 80,
-            allow_open: bool = False) -> float:
+def jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution: int = 80, allow_open: bool = False) -> float:
     """Intersection over union of the two meshes' solid voxelizations in a common box.
 
     The box: take the union of the two meshes' axis-aligned bounding boxes, make it a cube whose side
@@ -65,8 +64,10 @@ def jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution: int = 
     """
     for name, mesh in (("mesh_a", mesh_a), ("mesh_b", mesh_b)):
         if not allow_open and not mesh.is_watertight:
-            raise ValueError(f"{name} is not watertight, so its inside is undefined; repair it or pass "
-                             "allow_open=True to voxelize its surface only")
+            raise ValueError(
+                f"{name} is not watertight, so its inside is undefined; repair it or pass "
+                "allow_open=True to voxelize its surface only"
+            )
     bounds = np.concatenate([mesh_a.bounds, mesh_b.bounds], axis=0)
     lo, hi = bounds.min(axis=0), bounds.max(axis=0)
     side = float((hi - lo).max())
@@ -105,8 +106,7 @@ def sampled_jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution
     return float(np.count_nonzero(inside[0] & inside[1]) / union) if union else 1.0
 
 
-def hausdorff(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, samples: int = 7272,
-              seed: int = 0) -> dict[str, float]:
+def hausdorff(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, samples: int = 7272, seed: int = 0) -> dict[str, float]:
     """Symmetric surface distance between two meshes, in millimetres.
 
     ``samples`` points are drawn on each mesh: up to a tenth of them are mesh vertices (drawn without
@@ -130,12 +130,10 @@ def hausdorff(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, samples: int = 7
     d_ab = _distance_to_surface(_surface_points(mesh_a, samples, seed) - origin, mesh_b, origin)
     d_ba = _distance_to_surface(_surface_points(mesh_b, samples, seed) - origin, mesh_a, origin)
     d_mm = 1000.0 * np.concatenate([d_ab, d_ba])
-    return {"mean_mm": float(d_mm.mean()), "max_mm": float(d_mm.max()),
-            "rms_mm": float(np.sqrt(np.mean(d_mm**2)))}
+    return {"mean_mm": float(d_mm.mean()), "max_mm": float(d_mm.max()), "rms_mm": float(np.sqrt(np.mean(d_mm**2)))}
 
 
-def geodesic_divergence(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, seed: int = 0,
-                        n_samples: int = 200) -> float:
+def geodesic_divergence(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, seed: int = 0, n_samples: int = 200) -> float:
     """Jensen-Shannon divergence of the two meshes' global geodesic shape distributions.
 
     Hamza & Krim (2003) as the authors' ``geodesic_comparison`` code computed it (SPEC §7):
@@ -183,9 +181,14 @@ def completion_metrics(completed: trimesh.Trimesh, truth: trimesh.Trimesh, *, se
         (``j80``: :func:`sampled_jaccard`).
     """
     h = hausdorff(completed, truth, seed=seed)
-    return {"jaccard": jaccard(completed, truth), "j80": sampled_jaccard(completed, truth),
-            "hausdorff_mean_mm": h["mean_mm"], "hausdorff_max_mm": h["max_mm"], "hausdorff_rms_mm": h["rms_mm"],
-            "geodesic": geodesic_divergence(completed, truth, seed=seed)}
+    return {
+        "jaccard": jaccard(completed, truth),
+        "j80": sampled_jaccard(completed, truth),
+        "hausdorff_mean_mm": h["mean_mm"],
+        "hausdorff_max_mm": h["max_mm"],
+        "hausdorff_rms_mm": h["rms_mm"],
+        "geodesic": geodesic_divergence(completed, truth, seed=seed),
+    }
 
 
 def _occupancy_grid(mesh: trimesh.Trimesh, frame: GridFrame) -> np.ndarray:
@@ -203,8 +206,8 @@ def _occupancy_grid(mesh: trimesh.Trimesh, frame: GridFrame) -> np.ndarray:
         touched = np.zeros(m, dtype=bool)
         # Voxel v owns half-lattice points 2v .. 2v+2 on each axis (corners, mid-edges, mid-faces, centre).
         for dx, dy, dz in np.ndindex(3, 3, 3):
-            touched |= inside[dx:dx + 2 * m[0]:2, dy:dy + 2 * m[1]:2, dz:dz + 2 * m[2]:2]
-        grid[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] |= touched
+            touched |= inside[dx : dx + 2 * m[0] : 2, dy : dy + 2 * m[1] : 2, dz : dz + 2 * m[2] : 2]
+        grid[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] |= touched
     return grid
 
 
@@ -212,8 +215,10 @@ def _inside_half_lattice(mesh: trimesh.Trimesh, frame: GridFrame, lo: np.ndarray
     """Inside test of a closed mesh at grid coordinates ``lo + k / 2`` for every k up to ``hi``."""
     axes = [np.arange(2 * a, 2 * b + 1) / 2.0 for a, b in zip(lo, hi)]
     # Grid coordinates are axis-aligned metres: map each axis on its own.
-    metres = [frame.to_metres(np.stack([ax if i == j else np.zeros_like(ax) for j in range(3)], axis=1))[:, i]
-              for i, ax in enumerate(axes)]
+    metres = [
+        frame.to_metres(np.stack([ax if i == j else np.zeros_like(ax) for j in range(3)], axis=1))[:, i]
+        for i, ax in enumerate(axes)
+    ]
     return _inside_lattice(mesh, *metres)
 
 

@@ -38,11 +38,14 @@ class Varley2017(nn.Module):
     def __init__(self) -> None:
         super().__init__()
         self.features = nn.Sequential(
-            nn.Conv3d(1, 64, 4), nn.ReLU(inplace=True),      # 40 -> 37
-            nn.Conv3d(64, 64, 4), nn.ReLU(inplace=True),     # 37 -> 34
-            nn.MaxPool3d(2),                                 # 34 -> 17
-            nn.Conv3d(64, 64, 4), nn.ReLU(inplace=True),     # 17 -> 14
-            nn.MaxPool3d(2),                                 # 14 -> 7
+            nn.Conv3d(1, 64, 4),
+            nn.ReLU(inplace=True),  # 40 -> 37
+            nn.Conv3d(64, 64, 4),
+            nn.ReLU(inplace=True),  # 37 -> 34
+            nn.MaxPool3d(2),  # 34 -> 17
+            nn.Conv3d(64, 64, 4),
+            nn.ReLU(inplace=True),  # 17 -> 14
+            nn.MaxPool3d(2),  # 14 -> 7
         )
         self.dense1 = nn.Linear(64 * 7**3, 5000)
         self.dense2 = nn.Linear(5000, GRID_DIM**3)
@@ -211,9 +214,12 @@ class Completer:
         out = np.empty(batch.shape, dtype=np.float32)
         with torch.inference_mode():
             for i in range(0, len(batch), self.batch_size):
-                x = network_input(batch[i:i + self.batch_size], None if ctx is None else ctx[i:i + self.batch_size],
-                                  self.in_channels)
-                out[i:i + self.batch_size] = torch.sigmoid(self.net(x.to(self.device)))[:, 0].float().cpu().numpy()
+                x = network_input(
+                    batch[i : i + self.batch_size],
+                    None if ctx is None else ctx[i : i + self.batch_size],
+                    self.in_channels,
+                )
+                out[i : i + self.batch_size] = torch.sigmoid(self.net(x.to(self.device)))[:, 0].float().cpu().numpy()
         if ctx is not None:
             out[ctx.any(axis=1)] = 0.0
         return out[0] if single else out

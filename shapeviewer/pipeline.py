@@ -78,13 +78,19 @@ def check_segment(points_cam: np.ndarray) -> np.ndarray:
         raise SegmentTooSmallError(f"segment has {len(pts)} valid points; at least {MIN_SEGMENT_POINTS} are needed")
     extent = float((pts.max(0) - pts.min(0)).max())
     if extent < MIN_SEGMENT_EXTENT:
-        raise SegmentTooSmallError(f"segment is {extent * 1000:.1f} mm across; at least {MIN_SEGMENT_EXTENT * 1000:.0f} mm is needed")
+        raise SegmentTooSmallError(
+            f"segment is {extent * 1000:.1f} mm across; at least {MIN_SEGMENT_EXTENT * 1000:.0f} mm is needed"
+        )
     return pts
 
 
-def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
-                    segment_ids: list[int] | None = None, *, support_plane: np.ndarray | None = None
-                    ) -> list[Completion]:
+def complete_points(
+    segments_points_cam: list[np.ndarray],
+    completer: Completer,
+    segment_ids: list[int] | None = None,
+    *,
+    support_plane: np.ndarray | None = None,
+) -> list[Completion]:
     """Fast-complete several segments (camera-frame points, metres): one batched CNN pass.
 
     ``support_plane``: the table ``(a, b, c, d)`` in the camera frame (normal towards the camera),
@@ -100,8 +106,11 @@ def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
     grids, frames = zip(*(partial_to_grid(p) for p in pts)) if pts else ((), ())
     contexts = [context_grids(p, f, support_plane=support_plane) for p, f in zip(pts, frames)]
     t1 = time.perf_counter()
-    probs = (completer.predict(np.stack(grids), context=np.stack(contexts)) if grids
-             else np.zeros((0, 40, 40, 40), np.float32))
+    probs = (
+        completer.predict(np.stack(grids), context=np.stack(contexts))
+        if grids
+        else np.zeros((0, 40, 40, 40), np.float32)
+    )
     t2 = time.perf_counter()
     n = max(1, len(grids))
     plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
@@ -117,8 +126,13 @@ def complete_points(segments_points_cam: list[np.ndarray], completer: Completer,
     return out
 
 
-def complete(points_cam: np.ndarray, *, support_plane: np.ndarray | None = None, mode: str = "detailed",
-             completer: Completer | None = None) -> trimesh.Trimesh:
+def complete(
+    points_cam: np.ndarray,
+    *,
+    support_plane: np.ndarray | None = None,
+    mode: str = "detailed",
+    completer: Completer | None = None,
+) -> trimesh.Trimesh:
     """Complete one object's points into a closed mesh: the one entry point every caller uses.
 
     Args:

@@ -66,13 +66,13 @@ def fast_mesh(probabilities: np.ndarray, frame: GridFrame) -> trimesh.Trimesh:
 # ----------------------------------------------------------------------------------------------
 # Detailed mesh: Algorithm 1 of the paper with the numbers of SPEC §5.
 
-DENSITY_SAMPLE_STEP = 10      # density estimated on every 10th point against the whole cloud
+DENSITY_SAMPLE_STEP = 10  # density estimated on every 10th point against the whole cloud
 UPSAMPLE_RATIO_SCALE = 3 / 8  # r = ceil(3/8 * observed density / CNN density)
-MERGE_LEAF_FACTOR = 2.0       # re-voxelize at 2 x the observed mean nearest-neighbour distance
-MERGE_PADDING = 6             # voxels of padding on every side of the merged grid
-BAND = 4                      # Lempitsky smoothing optimises a band of 4 voxels around the boundary
-BAND_VALUE = 5.0              # F is fixed at +/-5 outside the band
-SMOOTH_ITERATIONS = 100       # FISTA steps (see lempitsky_smooth); the paper ran 500 Jacobi steps
+MERGE_LEAF_FACTOR = 2.0  # re-voxelize at 2 x the observed mean nearest-neighbour distance
+MERGE_PADDING = 6  # voxels of padding on every side of the merged grid
+BAND = 4  # Lempitsky smoothing optimises a band of 4 voxels around the boundary
+BAND_VALUE = 5.0  # F is fixed at +/-5 outside the band
+SMOOTH_ITERATIONS = 100  # FISTA steps (see lempitsky_smooth); the paper ran 500 Jacobi steps
 # An addition to the paper's steps. Merge: CNN voxels more than one voxel in front of the
 # observed surface along a camera ray are space the camera saw as free, and are carved away.
 # Marching cubes runs at F = 0, Lempitsky's level set, as in the paper. A voxel of the merged grid
@@ -127,7 +127,7 @@ def upsample_occupancy(occupied: np.ndarray, r: int) -> np.ndarray:
     """
     sign = np.where(np.asarray(occupied, dtype=bool), 1.0, -1.0).astype(np.float32)
     m = tuple(n - 1 for n in sign.shape)
-    corners = {(i, j, k): sign[i:i + m[0], j:j + m[1], k:k + m[2]] for i, j, k in np.ndindex(2, 2, 2)}
+    corners = {(i, j, k): sign[i : i + m[0], j : j + m[1], k : k + m[2]] for i, j, k in np.ndindex(2, 2, 2)}
     t = (np.arange(r) + 0.5) / r
     fine = np.empty((m[0], r, m[1], r, m[2], r), dtype=bool)
     for a, b, c in np.ndindex(r, r, r):
@@ -184,8 +184,7 @@ def _second_difference_gradient(F, out):
     return out
 
 
-def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band: int = BAND,
-                     device=None) -> np.ndarray:
+def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band: int = BAND, device=None) -> np.ndarray:
     """Algorithm 1, line 5: the embedding function F of Lempitsky (CVPR 2010), float32 array.
 
     Minimises the sum over voxels of squared second differences of F along x, y and z subject to
@@ -214,8 +213,11 @@ def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band:
     # Bounds: inside margin <= F, outside F <= -margin; voxels outside the band are pinned.
     lower = np.where(~in_band, F0, np.where(occ, margin, -np.inf)).astype(np.float32)
     upper = np.where(~in_band, F0, np.where(occ, np.inf, -margin)).astype(np.float32)
-    dev = torch.device(device) if device is not None else (
-        torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu"))
+    dev = (
+        torch.device(device)
+        if device is not None
+        else (torch.device("cuda") if torch.cuda.is_available() else torch.device("cpu"))
+    )
     # Edge padding by 2 gives the stencil its neighbours at the grid border; pinned like the rest.
     F, lo, hi = (torch.from_numpy(np.pad(a, 2, mode="edge")).to(dev) for a in (F0, lower, upper))
     # One CPU thread: each step is ~20 passes over at most a few 100k voxels, too little work to
@@ -238,8 +240,9 @@ def lempitsky_smooth(occ: np.ndarray, iterations: int = SMOOTH_ITERATIONS, band:
     return F[2:-2, 2:-2, 2:-2].cpu().numpy()
 
 
-def _carve_seen_free_space(occ: np.ndarray, origin: np.ndarray, leaf: float,
-                           observed_points_cam: np.ndarray) -> np.ndarray:
+def _carve_seen_free_space(
+    occ: np.ndarray, origin: np.ndarray, leaf: float, observed_points_cam: np.ndarray
+) -> np.ndarray:
     """Empty every voxel the camera saw through (:func:`voxel.seen_free` with a one-voxel margin).
 
     ``occ`` is a grid of voxel size ``leaf`` whose voxel 0 starts at ``origin`` (camera metres).
@@ -260,9 +263,15 @@ def _drop_specks(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return trimesh.util.concatenate([p for p, v in zip(parts, volumes) if v >= MIN_PART_SHARE * volumes.max()])
 
 
-def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_cam: np.ndarray, *,
-                  timings: dict | None = None, smooth_iterations: int = SMOOTH_ITERATIONS,
-                  support_plane: np.ndarray | None = None) -> trimesh.Trimesh:
+def detailed_mesh(
+    probabilities: np.ndarray,
+    frame: GridFrame,
+    observed_points_cam: np.ndarray,
+    *,
+    timings: dict | None = None,
+    smooth_iterations: int = SMOOTH_ITERATIONS,
+    support_plane: np.ndarray | None = None,
+) -> trimesh.Trimesh:
     """Algorithm 1: merge the dense observed points with the up-sampled CNN output, smooth, mesh.
 
     Steps (keys of ``timings``): ``density`` (ratio r), ``upsample`` (corner vote), ``merge``
@@ -304,7 +313,7 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     # Only the cubes around the occupied region matter: crop with one voxel of margin.
     lo = np.maximum(np.argwhere(occ).min(0) - 1, 0)
     hi = np.minimum(np.argwhere(occ).max(0) + 2, frame.dim)
-    fine = upsample_occupancy(occ[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], r)
+    fine = upsample_occupancy(occ[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]], r)
     fine_idx = np.argwhere(fine)
     # Fine point f sits at coarse voxel-centre coordinate lo + f / r + 0.5 / r, i.e. grid coordinate + 0.5.
     up_pts = frame.to_metres(lo + (fine_idx + 0.5) / r + 0.5)
@@ -323,10 +332,12 @@ def detailed_mesh(probabilities: np.ndarray, frame: GridFrame, observed_points_c
     origin = anchor - (np.ceil((anchor - merged.min(0)) / leaf) + MERGE_PADDING + 0.5) * leaf
     shape = np.ceil((merged.max(0) + MERGE_PADDING * leaf - origin) / leaf).astype(int) + 1
     if np.prod(shape) > 400**3:
-        raise ValueError(f"the merged grid would be {tuple(shape)} voxels: the observed cloud is too dense "
-                         f"for its size (mean spacing {obs_nn * 1000:.2f} mm); downsample it first")
+        raise ValueError(
+            f"the merged grid would be {tuple(shape)} voxels: the observed cloud is too dense "
+            f"for its size (mean spacing {obs_nn * 1000:.2f} mm); downsample it first"
+        )
     idx = np.floor((merged - origin) / leaf).astype(int)
-    obs_idx, cnn_idx = idx[:len(obs)], idx[len(obs):]
+    obs_idx, cnn_idx = idx[: len(obs)], idx[len(obs) :]
     cnn = np.zeros(shape, bool)
     cnn[cnn_idx[:, 0], cnn_idx[:, 1], cnn_idx[:, 2]] = True
     grid = _carve_seen_free_space(cnn, origin, leaf, obs)

@@ -34,9 +34,23 @@ _MAX_PLANES = 3
 # A support plane faces the camera's up (-y) within this many degrees.
 _MAX_TILT_DEG = 60.0
 # Distinct colours (Trubetskoy's list) without greys, which the table and the cloud use.
-PALETTE = np.array([(230, 25, 75), (60, 180, 75), (0, 130, 200), (245, 130, 48), (145, 30, 180),
-                    (70, 240, 240), (240, 50, 230), (210, 245, 60), (250, 190, 212), (0, 128, 128),
-                    (170, 110, 40), (255, 225, 25)], dtype=np.uint8)
+PALETTE = np.array(
+    [
+        (230, 25, 75),
+        (60, 180, 75),
+        (0, 130, 200),
+        (245, 130, 48),
+        (145, 30, 180),
+        (70, 240, 240),
+        (240, 50, 230),
+        (210, 245, 60),
+        (250, 190, 212),
+        (0, 128, 128),
+        (170, 110, 40),
+        (255, 225, 25),
+    ],
+    dtype=np.uint8,
+)
 
 
 class SegmentationError(ValueError):
@@ -96,12 +110,24 @@ class Segmentation:
     table_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
-def segment_scene(capture_or_points: Capture | np.ndarray, *, voxel_size: float = 0.01,
-                  plane_distance: float = 0.01, cluster_tolerance: float = 0.025, min_points: int = 200,
-                  max_extent: float = 0.5, min_height: float = 0.015, max_height: float = 0.5,
-                  max_range: float = 3.0, min_plane_fraction: float = 0.1, min_plane_extent: float = 0.4,
-                  ransac_iterations: int = 400, ransac_samples: int = 2000, seed: int = 0,
-                  max_voxels: int = MAX_VOXELS) -> Segmentation:
+def segment_scene(
+    capture_or_points: Capture | np.ndarray,
+    *,
+    voxel_size: float = 0.01,
+    plane_distance: float = 0.01,
+    cluster_tolerance: float = 0.025,
+    min_points: int = 200,
+    max_extent: float = 0.5,
+    min_height: float = 0.015,
+    max_height: float = 0.5,
+    max_range: float = 3.0,
+    min_plane_fraction: float = 0.1,
+    min_plane_extent: float = 0.4,
+    ransac_iterations: int = 400,
+    ransac_samples: int = 2000,
+    seed: int = 0,
+    max_voxels: int = MAX_VOXELS,
+) -> Segmentation:
     """Remove the support plane and split what stands on it into Euclidean clusters.
 
     Args:
@@ -139,11 +165,19 @@ def segment_scene(capture_or_points: Capture | np.ndarray, *, voxel_size: float 
     def lap(stage: str) -> None:
         timings[stage] = time.perf_counter() - t0 - sum(timings.values())
 
-    _check_parameters(voxel_size=voxel_size, plane_distance=plane_distance, cluster_tolerance=cluster_tolerance,
-                      max_extent=max_extent, max_range=max_range, min_plane_extent=min_plane_extent)
+    _check_parameters(
+        voxel_size=voxel_size,
+        plane_distance=plane_distance,
+        cluster_tolerance=cluster_tolerance,
+        max_extent=max_extent,
+        max_range=max_range,
+        min_plane_extent=min_plane_extent,
+    )
     if cluster_tolerance < voxel_size:
-        raise SegmentationError(f"cluster_tolerance ({cluster_tolerance} m) must be at least voxel_size "
-                                f"({voxel_size} m), or every voxel becomes its own cluster")
+        raise SegmentationError(
+            f"cluster_tolerance ({cluster_tolerance} m) must be at least voxel_size "
+            f"({voxel_size} m), or every voxel becomes its own cluster"
+        )
     if not 0 <= min_height < max_height:
         raise SegmentationError(f"need 0 <= min_height < max_height, got {min_height} and {max_height}")
     points = _flat_points(capture_or_points)
@@ -155,8 +189,10 @@ def segment_scene(capture_or_points: Capture | np.ndarray, *, voxel_size: float 
         keep = finite & (points[:, 2] > 0) & (points[:, 2] < max_range)
     idx = np.flatnonzero(keep)
     if len(idx) == 0:
-        raise SegmentationError(f"none of the {int(finite.sum())} finite points is in front of the camera "
-                                f"closer than max_range={max_range} m")
+        raise SegmentationError(
+            f"none of the {int(finite.sum())} finite points is in front of the camera "
+            f"closer than max_range={max_range} m"
+        )
     pts = np.take(points, idx, axis=0)
     lap("prepare")
 
@@ -239,8 +275,14 @@ def _flat_points(capture_or_points: Capture | np.ndarray) -> np.ndarray:
     return points.reshape(-1, 3)
 
 
-def _support_plane(sample: np.ndarray, rng: np.random.Generator, iterations: int, distance: float,
-                   min_fraction: float, min_extent: float) -> np.ndarray | None:
+def _support_plane(
+    sample: np.ndarray,
+    rng: np.random.Generator,
+    iterations: int,
+    distance: float,
+    min_fraction: float,
+    min_extent: float,
+) -> np.ndarray | None:
     """The support plane (4,) of a camera-frame subsample, normal towards the camera, or None."""
     remaining, fallback = sample, None
     for _ in range(_MAX_PLANES):
@@ -260,8 +302,9 @@ def _support_plane(sample: np.ndarray, rng: np.random.Generator, iterations: int
     return fallback
 
 
-def _ransac_plane(points: np.ndarray, rng: np.random.Generator, iterations: int, distance: float
-                  ) -> tuple[np.ndarray, np.ndarray] | None:
+def _ransac_plane(
+    points: np.ndarray, rng: np.random.Generator, iterations: int, distance: float
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Plane (4,) with the most inliers among random 3-point hypotheses, least-squares refined.
 
     Returns ``(plane, inlier mask)`` or None when the points define no plane.
@@ -325,8 +368,9 @@ def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def _make_segments(idx: np.ndarray, points: np.ndarray, labels: np.ndarray, min_points: int,
-                   max_extent: float) -> list[Segment]:
+def _make_segments(
+    idx: np.ndarray, points: np.ndarray, labels: np.ndarray, min_points: int, max_extent: float
+) -> list[Segment]:
     """Segments of the clusters that pass the size tests, numbered by the image column of their centroid."""
     counts = np.bincount(labels, minlength=1)
     kept = []
@@ -338,6 +382,13 @@ def _make_segments(idx: np.ndarray, points: np.ndarray, labels: np.ndarray, min_
             centre = pts.mean(axis=0)
             kept.append((centre[0] / centre[2], -len(members), idx[members], pts, size))
     kept.sort(key=lambda k: k[:2])
-    return [Segment(i, indices.astype(np.int64), pts, PALETTE[i % len(PALETTE)].copy(),
-                    f"segment {i} ({len(pts)} pts, {100 * size:.0f} cm)")
-            for i, (_, _, indices, pts, size) in enumerate(kept)]
+    return [
+        Segment(
+            i,
+            indices.astype(np.int64),
+            pts,
+            PALETTE[i % len(PALETTE)].copy(),
+            f"segment {i} ({len(pts)} pts, {100 * size:.0f} cm)",
+        )
+        for i, (_, _, indices, pts, size) in enumerate(kept)
+    ]

@@ -24,9 +24,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .sim import catalogue
 from .fileio import atomic_write
 from .model import build, default_device, network_input, save_weights
+from .sim import catalogue
 from .voxel import GRID_DIM
 
 log = logging.getLogger(__name__)
@@ -84,16 +84,32 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
         for s in SETS:
             m = split == s
             if m.any():
-                parts[s].append((x[m], y[m], free[m], below[m], np.full(m.sum(), name, dtype=object), views[m],
-                                 np.full(m.sum(), str(data_dir), dtype=object)))
+                parts[s].append(
+                    (
+                        x[m],
+                        y[m],
+                        free[m],
+                        below[m],
+                        np.full(m.sum(), name, dtype=object),
+                        views[m],
+                        np.full(m.sum(), str(data_dir), dtype=object),
+                    )
+                )
     out = {}
     for s in SETS:
         if parts[s]:
             out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(7)))
         else:
             empty = np.zeros((0, packed), np.uint8)
-            out[s] = GridSet(empty, empty.copy(), empty.copy(), empty.copy(), np.zeros(0, dtype=object),
-                             np.zeros(0, np.int32), np.zeros(0, dtype=object))
+            out[s] = GridSet(
+                empty,
+                empty.copy(),
+                empty.copy(),
+                empty.copy(),
+                np.zeros(0, dtype=object),
+                np.zeros(0, np.int32),
+                np.zeros(0, dtype=object),
+            )
     return out
 
 
@@ -110,8 +126,9 @@ def _shard_files(data_dirs: str | Path | list) -> list[tuple[Path, Path]]:
     return out
 
 
-def augment(x: np.ndarray, y: np.ndarray, ctx: np.ndarray, rng: np.random.Generator
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def augment(
+    x: np.ndarray, y: np.ndarray, ctx: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Random symmetries of the image plane (flip x, flip y, swap x and y), applied to X, Y and the
     context alike, and the support plane hidden in ``PLANE_DROPOUT`` of the examples.
 
@@ -142,8 +159,9 @@ def jaccard_grids(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
 
 
-def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 500, seed: int = 0,
-                   batch: int = 32) -> dict:
+def evaluate_grids(
+    net_or_completer, sets: dict[str, GridSet], max_views: int = 500, seed: int = 0, batch: int = 32
+) -> dict:
     """Mean Jaccard at 40^3 (threshold 0.5) per set, for the network and for the input alone.
 
     Uses a seeded sample of at most ``max_views`` views per set.
@@ -161,12 +179,15 @@ def evaluate_grids(net_or_completer, sets: dict[str, GridSet], max_views: int = 
         idx = np.sort(rng.choice(len(gs), size=min(max_views, len(gs)), replace=False))
         js, js_in = [], []
         for i in range(0, len(idx), batch):
-            x, y, ctx = gs.grids(idx[i:i + batch])
+            x, y, ctx = gs.grids(idx[i : i + batch])
             p = completer.predict(x, context=ctx)
             js.append(jaccard_grids(p > 0.5, y))
             js_in.append(jaccard_grids(x, y))
-        out[s] = {"jaccard": float(np.concatenate(js).mean()), "input_jaccard": float(np.concatenate(js_in).mean()),
-                  "views": int(len(idx))}
+        out[s] = {
+            "jaccard": float(np.concatenate(js).mean()),
+            "input_jaccard": float(np.concatenate(js_in).mean()),
+            "views": int(len(idx)),
+        }
     return out
 
 
@@ -201,14 +222,16 @@ def warm_start(net: torch.nn.Module, weights: str | Path) -> None:
     for k, v in blob["state_dict"].items():
         if k in state and state[k].shape != v.shape and v.ndim == 5 and v.shape[1] < state[k].shape[1]:
             wide = torch.zeros_like(state[k])
-            wide[:, :v.shape[1]] = v
+            wide[:, : v.shape[1]] = v
             v = wide
         state[k] = v
     net.load_state_dict(state)
 
 
-def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
-    """Train (or resume) a network on generated data; returns the last evaluation."""
+def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None, progress: bool = True) -> dict:
+    """Train (or resume) a network on generated data (``cfg``: :class:`TrainConfig`'s defaults if None);
+    returns the last evaluation."""
+    cfg = cfg or TrainConfig()
     from tqdm import tqdm
 
     run_dir = Path(run_dir)
@@ -238,8 +261,18 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
         _truncate_log(run_dir / "log.csv", step)
     data_names = [str(d) for d in (data_dir if isinstance(data_dir, (list, tuple)) else [data_dir])]
     (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": data_names}, indent=1))
-    meta = lambda: {"steps": step, "arch_kwargs": _arch_kwargs(cfg), "data": data_names, "lr": cfg.lr,
-                    "batch_size": cfg.batch_size, "wall_seconds": wall, "examples": {s: len(v) for s, v in sets.items()}}
+
+    def meta() -> dict:
+        return {
+            "steps": step,
+            "arch_kwargs": _arch_kwargs(cfg),
+            "data": data_names,
+            "lr": cfg.lr,
+            "batch_size": cfg.batch_size,
+            "wall_seconds": wall,
+            "examples": {s: len(v) for s, v in sets.items()},
+        }
+
     log_path = run_dir / "log.csv"
     new_log = not log_path.exists()
     logf = open(log_path, "a", newline="")
@@ -278,8 +311,14 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
                 net.train()
                 mean_loss = float(np.mean(losses))
                 losses.clear()
-                writer.writerow([step, f"{mean_loss:.3f}", *(f"{result.get(s, {}).get('jaccard', float('nan')):.4f}" for s in SETS),
-                                 f"{wall:.0f}"])
+                writer.writerow(
+                    [
+                        step,
+                        f"{mean_loss:.3f}",
+                        *(f"{result.get(s, {}).get('jaccard', float('nan')):.4f}" for s in SETS),
+                        f"{wall:.0f}",
+                    ]
+                )
                 logf.flush()
                 if mean_loss < best_loss:
                     best_loss = mean_loss
@@ -289,7 +328,9 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig = TrainCon
                     best_jac = jac
                     save_weights(run_dir / "best_holdout_model.pt", net, cfg.arch, {**meta(), "eval": result})
                 plot_log(log_path, run_dir / "jaccard.png")
-                log.info("step %d loss %.1f %s", step, mean_loss, {s: round(r["jaccard"], 3) for s, r in result.items()})
+                log.info(
+                    "step %d loss %.1f %s", step, mean_loss, {s: round(r["jaccard"], 3) for s, r in result.items()}
+                )
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
                 _save_checkpoint(last, net, opt, rng, step, best_loss, best_jac, wall)
     finally:
@@ -312,8 +353,18 @@ def _truncate_log(log_csv: Path, step: int) -> None:
 
 def _save_checkpoint(path: Path, net, opt, rng, step, best_loss, best_jac, wall) -> None:
     buf = io.BytesIO()
-    torch.save({"state_dict": net.state_dict(), "optimizer": opt.state_dict(), "rng": rng.bit_generator.state,
-                "step": step, "best_loss": best_loss, "best_jaccard": best_jac, "wall": wall}, buf)
+    torch.save(
+        {
+            "state_dict": net.state_dict(),
+            "optimizer": opt.state_dict(),
+            "rng": rng.bit_generator.state,
+            "step": step,
+            "best_loss": best_loss,
+            "best_jaccard": best_jac,
+            "wall": wall,
+        },
+        buf,
+    )
     atomic_write(path, buf.getvalue())
 
 
@@ -350,27 +401,32 @@ def model_card(completer, evaluation: dict, data_dir: str | Path | list) -> str:
     # Counted on a fresh module: the loaded one's convolutions are pre-packed for oneDNN.
     n_params = sum(p.numel() for p in build(completer.arch, **meta.get("arch_kwargs", {})).parameters())
     names = {"training_view": "Training Views", "holdout_view": "Holdout Views", "holdout_model": "Holdout Models"}
-    rows = "\n".join(f"| {names[s]} | {v['views']} | {v['jaccard']:.3f} | {v['input_jaccard']:.3f} |"
-                     for s, v in evaluation.items())
+    rows = "\n".join(
+        f"| {names[s]} | {v['views']} | {v['jaccard']:.3f} | {v['input_jaccard']:.3f} |" for s, v in evaluation.items()
+    )
     ex = meta.get("examples", {})
     data = meta.get("data", data_dir)
     data = ", ".join(f"`{d}`" for d in (data if isinstance(data, (list, tuple)) else [data]))
-    inputs = ("occupancy, plus two context channels: space the camera saw through and space under the support "
-              "plane (`voxel.context_grids`), both zeroed in the output" if completer.in_channels == 3
-              else "occupancy only (the paper's input)")
+    inputs = (
+        "occupancy, plus two context channels: space the camera saw through and space under the support "
+        "plane (`voxel.context_grids`), both zeroed in the output"
+        if completer.in_channels == 3
+        else "occupancy only (the paper's input)"
+    )
     return f"""# Model card: `{completer.arch}` shape completion CNN
 
 - **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 grids in the
   paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels). Input: {inputs}.
-- **Data**: folders {data}; examples: {ex.get('training_view', '?')} training views,
-  {ex.get('holdout_view', '?')} holdout views, {ex.get('holdout_model', '?')} holdout-model views.
+- **Data**: folders {data}; examples: {ex.get("training_view", "?")} training views,
+  {ex.get("holdout_view", "?")} holdout views, {ex.get("holdout_model", "?")} holdout-model views.
 - **Split**: holdout models are YCB 003_cracker_box, 006_mustard_bottle, 024_bowl, 035_power_drill and 15% of
   the random pybullet and the procedural household objects (hash of the name); 20% of each training model's
   views are holdout views.
-- **Training**: Adam (betas 0.9/0.999, eps 1e-8), learning rate {meta.get('lr', '?')}, batch {meta.get('batch_size', '?')}
-  drawn with replacement, binary cross-entropy summed over voxels, random image-plane mirror/transpose
-  augmentation, the support plane hidden in {PLANE_DROPOUT:.0%} of the examples; {meta.get('steps', '?')} steps,
-  {meta.get('wall_seconds', 0) / 3600:.1f} h of CPU time (2 cores, shared). Checkpoint chosen by the best Holdout
+- **Training**: Adam (betas 0.9/0.999, eps 1e-8), learning rate {meta.get("lr", "?")},
+  batch {meta.get("batch_size", "?")} drawn with replacement, binary cross-entropy summed over voxels,
+  random image-plane mirror/transpose augmentation, the support plane hidden in {PLANE_DROPOUT:.0%} of the
+  examples; {meta.get("steps", "?")} steps,
+  {meta.get("wall_seconds", 0) / 3600:.1f} h of CPU time (2 cores, shared). Checkpoint chosen by the best Holdout
   Models Jaccard on a 200-view sample (as the paper kept its best holdout-model checkpoint).
 
 ## Jaccard at 40^3 (`shapeviewer evaluate-grids`, 500 views per set)

@@ -51,12 +51,11 @@ class GridFrame:
             raise ValueError(f"invalid grid frame: center={self.center}, voxel_size={self.voxel_size}")
 
     @classmethod
-    def from_corner(cls, corner: np.ndarray, voxel_size: float, dim: int) -> "GridFrame":
+    def from_corner(cls, corner: np.ndarray, voxel_size: float, dim: int) -> GridFrame:
         """The frame of a ``dim``^3 grid whose voxel (0, 0, 0) starts at ``corner`` (camera metres)."""
         # ``center`` sits at grid coordinate CENTER_INDEX * dim / 40: place it so that grid
         # coordinate 0 lands on ``corner``.
-        return cls(np.asarray(corner, dtype=np.float64) + CENTER_INDEX * (dim / GRID_DIM) * voxel_size,
-                   voxel_size, dim)
+        return cls(np.asarray(corner, dtype=np.float64) + CENTER_INDEX * (dim / GRID_DIM) * voxel_size, voxel_size, dim)
 
     @property
     def offset(self) -> np.ndarray:
@@ -133,8 +132,13 @@ def partial_to_grid(points_cam: np.ndarray) -> tuple[np.ndarray, GridFrame]:
     return points_to_grid(points_cam, frame), frame
 
 
-def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray | None = None,
-               surface_points: np.ndarray | None = None, scene=None) -> np.ndarray:
+def solid_grid(
+    mesh: trimesh.Trimesh,
+    frame: GridFrame,
+    T_cam_mesh: np.ndarray | None = None,
+    surface_points: np.ndarray | None = None,
+    scene=None,
+) -> np.ndarray:
     """Every voxel a closed mesh touches: its interior and every voxel its surface passes through.
 
     This is the ground truth Y of the paper (binvox marks surface and interior, SPEC §4).
@@ -174,8 +178,7 @@ def solid_grid(mesh: trimesh.Trimesh, frame: GridFrame, T_cam_mesh: np.ndarray |
     return grid
 
 
-def surface_samples(mesh: trimesh.Trimesh, spacing: float, max_points: int = 2_000_000,
-                    seed: int = 0) -> np.ndarray:
+def surface_samples(mesh: trimesh.Trimesh, spacing: float, max_points: int = 2_000_000, seed: int = 0) -> np.ndarray:
     """Points on the surface of ``mesh`` about ``spacing`` apart (same frame and unit as the mesh).
 
     Includes the vertices so that small features are never missed.
@@ -232,8 +235,9 @@ def seen_free(centres_cam: np.ndarray, observed_points_cam: np.ndarray, margin: 
     nearest = np.full(rays.max(0) + 2, np.inf)
     np.minimum.at(nearest, (rays[:, 0], rays[:, 1]), pts[:, 2])
     # A neighbour without points (inf) must not make its neighbours free: use -inf for unknown.
-    nearest = ndimage.minimum_filter(np.where(np.isfinite(nearest), nearest, -np.inf), size=3, mode="constant",
-                                     cval=-np.inf)
+    nearest = ndimage.minimum_filter(
+        np.where(np.isfinite(nearest), nearest, -np.inf), size=3, mode="constant", cval=-np.inf
+    )
     ahead = centres[:, 2] > 1e-6
     bins = np.floor(centres[ahead, :2] / centres[ahead, 2:3] / step).astype(np.int64) - lo
     inside = ((bins >= 0) & (bins < nearest.shape)).all(axis=1)
@@ -251,7 +255,7 @@ def below_plane(centres_cam: np.ndarray, plane_cam: np.ndarray, half_extent: flo
     return height < -half_extent * float(np.abs(n).sum())
 
 
-def unit_plane(plane: np.ndarray, camera_center: np.ndarray = np.zeros(3)) -> tuple[np.ndarray, float]:
+def unit_plane(plane: np.ndarray, camera_center: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """``(normal, d)`` of a plane ``(a, b, c, d)``: unit normal, turned towards ``camera_center``
     (camera frame metres; the camera's own centre by default). ValueError if malformed."""
     plane = np.asarray(plane, dtype=np.float64).reshape(-1)
@@ -261,7 +265,8 @@ def unit_plane(plane: np.ndarray, camera_center: np.ndarray = np.zeros(3)) -> tu
     if length < 1e-12:
         raise ValueError("the support plane's normal (a, b, c) is zero")
     normal, d = plane[:3] / length, plane[3] / length
-    if normal @ camera_center + d < 0:
+    centre = np.zeros(3) if camera_center is None else np.asarray(camera_center, dtype=np.float64)
+    if normal @ centre + d < 0:
         normal, d = -normal, -d
     return normal, float(d)
 

@@ -21,14 +21,21 @@ except ImportError:  # pragma: no cover - depends on the environment
     sync_playwright = None
 
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 
 needs_browser = pytest.mark.skipif(
     not CHROMIUM.exists() or sync_playwright is None,
     reason="needs Debian chromium at /usr/bin/chromium (apt-get install chromium) and playwright "
-           "(pip install playwright)")
+    "(pip install playwright)",
+)
 
 
 def free_port() -> int:

@@ -24,9 +24,13 @@ from shapeviewer.sim import catalogue
 
 # (object, view): two views of one object, one of a holdout model, one of a pybullet object.
 VIEWS = (("ycb/025_mug", 3), ("ycb/025_mug", 40), ("ycb/006_mustard_bottle", 7), ("pybullet/duck", 11))
-SCALES = {"Partial": (1.0, 1.0, 0.45), "Mirror": (1.1, 1.05, 1.0), "Hull": (1.0, 1.0, 0.6),
-          "Ours-fast": (0.95, 0.97, 1.02),
-          "Ours-detailed": (1.0, 0.98, 0.99)}
+SCALES = {
+    "Partial": (1.0, 1.0, 0.45),
+    "Mirror": (1.1, 1.05, 1.0),
+    "Hull": (1.0, 1.0, 0.6),
+    "Ours-fast": (0.95, 0.97, 1.02),
+    "Ours-detailed": (1.0, 0.98, 0.99),
+}
 
 
 def jaccard_of(name: str, view: int, method: str) -> float:
@@ -70,13 +74,33 @@ def grasp_doc(completion_cam: trimesh.Trimesh, n: int = 2) -> str:
         grasps.append(Grasp("barrett", T, dofs, joints, (), 0.02 * (k + 1), 0.1, -0.01))
         Te = T.copy()
         Te[:3, 3] += [0.0, 0.0, -0.005]
-        executions.append(ExecutionResult("barrett", Te, dofs, {j: v + 0.05 for j, v in joints.items()}, (),
-                                          0.01, 0.05, 2.9, 5.0, True, True, LiftResult(k == 0, 0.1, 0.0)))
+        executions.append(
+            ExecutionResult(
+                "barrett",
+                Te,
+                dofs,
+                {j: v + 0.05 for j, v in joints.items()},
+                (),
+                0.01,
+                0.05,
+                2.9,
+                5.0,
+                True,
+                True,
+                LiftResult(k == 0, 0.1, 0.0),
+            )
+        )
     return grasps_to_json(grasps, executions, meta={"T_world_cam": T_WORLD_CAM.tolist()})
 
 
-def write_view(root: Path, name: str, view: int, old_format: bool = False, failed: tuple[str, ...] = (),
-               grasp_methods: tuple[str, ...] = ()) -> dict:
+def write_view(
+    root: Path,
+    name: str,
+    view: int,
+    old_format: bool = False,
+    failed: tuple[str, ...] = (),
+    grasp_methods: tuple[str, ...] = (),
+) -> dict:
     """Write one view's meshes, grasps and record; returns the record (the rows as written)."""
     stem = view_stem(name, view)
     meshes = root / "meshes"
@@ -96,9 +120,16 @@ def write_view(root: Path, name: str, view: int, old_format: bool = False, faile
             mesh.apply_transform(view_pose(name, view, 0) @ np.diag([*SCALES[m], 1.0]) @ T_obj_cam)
             mesh.export(meshes / f"{stem}__{m}.ply")
             j = jaccard_of(name, view, m)
-            row.update(jaccard=j, j80=j, hausdorff_mean_mm=20 * (1 - j), hausdorff_max_mm=60 * (1 - j),
-                       hausdorff_rms_mm=25 * (1 - j), geodesic=0.5 * (1 - j), seconds=0.1 * (1 + METHODS.index(m)),
-                       error="")
+            row.update(
+                jaccard=j,
+                j80=j,
+                hausdorff_mean_mm=20 * (1 - j),
+                hausdorff_max_mm=60 * (1 - j),
+                hausdorff_rms_mm=25 * (1 - j),
+                geodesic=0.5 * (1 - j),
+                seconds=0.1 * (1 + METHODS.index(m)),
+                error="",
+            )
         rows.append(row)
     if old_format:
         (root / "views").mkdir(parents=True, exist_ok=True)
@@ -109,12 +140,31 @@ def write_view(root: Path, name: str, view: int, old_format: bool = False, faile
         rel = rec.grasp_file(stem, m)
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_text(grasp_doc(trimesh.load(meshes / f"{stem}__{m}.ply")))
-        record["grasps"].append({"method": m, "hand": "barrett", "file": rel, "n": 2, "joint_error_deg": 2.9,
-                                 "pose_error_mm": 5.0, "epsilon_planned": 0.03, "volume_planned": 0.1,
-                                 "epsilon_executed": 0.01, "volume_executed": 0.05, "force_closure_planned": 1.0,
-                                 "force_closure_executed": 1.0, "start_clear": 1.0, "lift_success": 0.5,
-                                 "lift_success_best": 1.0, "n_requested": 2, "plan_seed": 1, "seconds_plan": 1.5,
-                                 "seconds_execute": 0.2, "frame": "evaluation_world", "error": ""})
+        record["grasps"].append(
+            {
+                "method": m,
+                "hand": "barrett",
+                "file": rel,
+                "n": 2,
+                "joint_error_deg": 2.9,
+                "pose_error_mm": 5.0,
+                "epsilon_planned": 0.03,
+                "volume_planned": 0.1,
+                "epsilon_executed": 0.01,
+                "volume_executed": 0.05,
+                "force_closure_planned": 1.0,
+                "force_closure_executed": 1.0,
+                "start_clear": 1.0,
+                "lift_success": 0.5,
+                "lift_success_best": 1.0,
+                "n_requested": 2,
+                "plan_seed": 1,
+                "seconds_plan": 1.5,
+                "seconds_execute": 0.2,
+                "frame": "evaluation_world",
+                "error": "",
+            }
+        )
     rec.save_view(root, record)
     return record
 
@@ -124,7 +174,12 @@ def make_store(root: Path) -> dict[tuple[str, int], dict]:
     on the mustard bottle, grasps on Ours-fast and Partial of the first mug view."""
     out = {}
     for i, (name, view) in enumerate(VIEWS):
-        out[(name, view)] = write_view(root, name, view, old_format=(i == 1),
-                                       failed=("Mirror",) if name == "ycb/006_mustard_bottle" else (),
-                                       grasp_methods=("Ours-fast", "Partial") if i == 0 else ())
+        out[(name, view)] = write_view(
+            root,
+            name,
+            view,
+            old_format=(i == 1),
+            failed=("Mirror",) if name == "ycb/006_mustard_bottle" else (),
+            grasp_methods=("Ours-fast", "Partial") if i == 0 else (),
+        )
     return out

@@ -1,6 +1,6 @@
 """The Partial and Mirror baselines on rendered views of YCB objects standing on a table."""
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -9,14 +9,14 @@ from scipy.spatial import cKDTree
 
 from shapeviewer.baselines import PARTIAL_LEAF_FACTOR, find_mirror_plane, mirror_mesh, partial_mesh
 from shapeviewer.camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid, look_at
-from shapeviewer.sim.catalogue import load_mesh
 from shapeviewer.metrics import hausdorff, jaccard
 from shapeviewer.reconstruct import mean_nn_distance
+from shapeviewer.sim.catalogue import load_mesh
 
 BOX, BOTTLE, MUG = "ycb/004_sugar_box", "ycb/006_mustard_bottle", "ycb/025_mug"
 
 
-@lru_cache(maxsize=None)
+@cache
 def tabletop_view(name: str, yaw_deg: float = 30.0):
     """A noisy Kinect view of ``name`` standing on the table z = 0, yawed by ``yaw_deg`` about z,
     seen from 0.8 m at 45 degrees down.
@@ -42,7 +42,7 @@ def tabletop_view(name: str, yaw_deg: float = 30.0):
     return points, plane, world.copy().apply_transform(T_cam_world), T_cam_world @ T_world_obj
 
 
-@lru_cache(maxsize=None)
+@cache
 def completions(name: str):
     points, plane, _, _ = tabletop_view(name)
     return partial_mesh(points), mirror_mesh(points, plane)
@@ -136,12 +136,15 @@ def test_without_a_support_plane_the_mirror_faces_the_camera_and_the_mesh_is_clo
     assert mesh.is_watertight and mesh.centroid[2] > points[:, 2].mean()
 
 
-@pytest.mark.parametrize("points, message", [
-    (np.zeros((5, 3)) + np.arange(5)[:, None] * 0.01, "at least 20 distinct"),
-    (np.full((100, 3), 0.5), "at least 20 distinct"),
-    (np.full((100, 3), np.nan), "at least 20 distinct"),
-    (np.zeros((100, 2)), r"\(N, 3\)"),
-])
+@pytest.mark.parametrize(
+    "points, message",
+    [
+        (np.zeros((5, 3)) + np.arange(5)[:, None] * 0.01, "at least 20 distinct"),
+        (np.full((100, 3), 0.5), "at least 20 distinct"),
+        (np.full((100, 3), np.nan), "at least 20 distinct"),
+        (np.zeros((100, 2)), r"\(N, 3\)"),
+    ],
+)
 def test_too_little_input_is_a_clear_error(points, message):
     with pytest.raises(ValueError, match=message):
         partial_mesh(points)

@@ -40,8 +40,9 @@ def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] |
     canvas.wait_for(state="visible", timeout=20_000)
     box = canvas.bounding_box()
     R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
-    u, v = project_to_pixels(np.asarray(point_world)[None], cam.position, R, cam.fov, cam.image_width,
-                             cam.image_height)[0]
+    u, v = project_to_pixels(
+        np.asarray(point_world)[None], cam.position, R, cam.fov, cam.image_width, cam.image_height
+    )[0]
     x = box["x"] + u * box["width"] / cam.image_width
     y = box["y"] + v * box["height"] / cam.image_height
     return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
@@ -69,8 +70,9 @@ def test_click_segment_completes_it(tmp_path):
     app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
     try:
         with browser_page(app) as page:
-            client = wait_until(lambda: next(iter(app.server.get_clients().values()), None), 15,
-                                "the browser to connect")
+            client = wait_until(
+                lambda: next(iter(app.server.get_clients().values()), None), 15, "the browser to connect"
+            )
             cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
             # Click the largest segment that is in view, not hidden behind another one and
             # not under the control panel.
@@ -150,8 +152,12 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             k, xy = target
             completed = set(app.completions)
             # The click handler runs on viser's thread: wait for all of the selection, dropdown included.
-            click_until(page, xy, lambda: app.grasps.selected == k and app.grasps.panel.grasp.value.startswith(
-                f"#{k + 1} "), f"grasp #{k + 1} being selected")
+            click_until(
+                page,
+                xy,
+                lambda: app.grasps.selected == k and app.grasps.panel.grasp.value.startswith(f"#{k + 1} "),
+                f"grasp #{k + 1} being selected",
+            )
             assert set(app.completions) == completed
     finally:
         app.stop()

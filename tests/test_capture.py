@@ -54,6 +54,7 @@ def test_given_intrinsics_are_kept_and_checked(real_data: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 # Hand-written files: every encoding, organized, with NaN rows and packed colours.
 
+
 def _grid_cloud() -> tuple[Intrinsics, np.ndarray, np.ndarray]:
     """A 6x5 organized cloud of a tilted plane (two NaN pixels) and its colours."""
     intr = Intrinsics(6, 5, 5.0, 5.5, 2.5, 2.0)
@@ -69,8 +70,10 @@ def _write_pcd(path: Path, points: np.ndarray, colors: np.ndarray, data: str, co
     h, w = points.shape[:2]
     c = colors.astype(np.uint32)
     packed = (255 << 24) | (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
-    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F {color_type}\nCOUNT 1 1 1 1\n"
-              f"WIDTH {w}\nHEIGHT {h}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {w * h}\nDATA {data}\n")
+    header = (
+        f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F {color_type}\nCOUNT 1 1 1 1\n"
+        f"WIDTH {w}\nHEIGHT {h}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {w * h}\nDATA {data}\n"
+    )
     rec = np.zeros(w * h, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
     rec["x"], rec["y"], rec["z"] = points.reshape(-1, 3).T
     rec["rgb"] = packed.reshape(-1) if color_type == "U" else (packed.reshape(-1) & 0xFFFFFF)
@@ -84,19 +87,25 @@ def _write_pcd(path: Path, points: np.ndarray, colors: np.ndarray, data: str, co
 
 def _write_ply(path: Path, points: np.ndarray, colors: np.ndarray, fmt: str) -> None:
     h, w = points.shape[:2]
-    header = (f"ply\nformat {fmt} 1.0\ncomment written by a test\nobj_info num_cols {w}\nobj_info num_rows {h}\n"
-              f"element vertex {w * h}\nproperty float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    header = (
+        f"ply\nformat {fmt} 1.0\ncomment written by a test\nobj_info num_cols {w}\nobj_info num_rows {h}\n"
+        f"element vertex {w * h}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    )
     rec = np.zeros(w * h, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
     rec["x"], rec["y"], rec["z"] = points.reshape(-1, 3).T
     rec["r"], rec["g"], rec["b"] = colors.reshape(-1, 3).T
-    body = rec.tobytes() if fmt == "binary_little_endian" else "".join(
-        f"{r['x']} {r['y']} {r['z']} {r['r']} {r['g']} {r['b']}\n" for r in rec).encode()
+    body = (
+        rec.tobytes()
+        if fmt == "binary_little_endian"
+        else "".join(f"{r['x']} {r['y']} {r['z']} {r['r']} {r['g']} {r['b']}\n" for r in rec).encode()
+    )
     path.write_bytes(header.encode() + body)
 
 
-@pytest.mark.parametrize("kind", ["pcd ascii U", "pcd ascii F", "pcd binary U", "pcd binary F",
-                                  "ply ascii", "ply binary_little_endian"])
+@pytest.mark.parametrize(
+    "kind", ["pcd ascii U", "pcd ascii F", "pcd binary U", "pcd binary F", "ply ascii", "ply binary_little_endian"]
+)
 def test_organized_files_round_trip(tmp_path: Path, kind: str) -> None:
     intr, points, colors = _grid_cloud()
     suffix, fmt, *color_type = kind.split()
@@ -132,6 +141,7 @@ def test_fit_intrinsics_rejects_non_camera_frames() -> None:
 # ---------------------------------------------------------------------------------------------
 # Broken files: always a CaptureError that names the file.
 
+
 def _good_pcd(tmp_path: Path, data: str) -> bytes:
     _, points, colors = _grid_cloud()
     _write_pcd(tmp_path / "good.pcd", points, colors, data, "U")
@@ -156,8 +166,11 @@ BROKEN = {
     "points_mismatch.pcd": lambda tmp, real: real.replace(b"POINTS 307200", b"POINTS 307201", 1),
     "no_xyz.pcd": lambda tmp, real: real.replace(b"FIELDS x y z rgba", b"FIELDS a b c rgba", 1),
     "bad_data.pcd": lambda tmp, real: real.replace(b"DATA binary_compressed", b"DATA zipped", 1),
-    "all_nan.pcd": lambda tmp, real: _good_pcd(tmp, "binary").split(b"DATA binary\n")[0] + b"DATA binary\n"
-    + np.full(30 * 4, np.nan, "<f4").tobytes(),
+    "all_nan.pcd": lambda tmp, real: (
+        _good_pcd(tmp, "binary").split(b"DATA binary\n")[0]
+        + b"DATA binary\n"
+        + np.full(30 * 4, np.nan, "<f4").tobytes()
+    ),
     "ply_binary_truncated.ply": lambda tmp, real: _good_ply(tmp, "binary_little_endian")[:-20],
     "ply_ascii_truncated.ply": lambda tmp, real: _good_ply(tmp, "ascii")[:-100],
     "ply_no_vertex.ply": lambda tmp, real: b"ply\nformat ascii 1.0\nelement face 0\nend_header\n",
@@ -188,11 +201,12 @@ def test_missing_file_and_directory(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 # Depth images
 
+
 def _synthetic_depth(intr: Intrinsics) -> np.ndarray:
     """Metres: a floor plane with a raised box, and a hole of missing pixels."""
-    v, u = np.mgrid[0:intr.height, 0:intr.width]
+    v, u = np.mgrid[0 : intr.height, 0 : intr.width]
     depth = 0.8 + 1.2 * v / intr.height
-    depth[intr.height // 3: intr.height // 2, intr.width // 3: intr.width // 2] -= 0.15
+    depth[intr.height // 3 : intr.height // 2, intr.width // 3 : intr.width // 2] -= 0.15
     depth[:10, :20] = 0.0
     return depth.astype(np.float32)
 
@@ -216,8 +230,9 @@ def test_depth_npy_round_trip_and_scale(tmp_path: Path) -> None:
     cap = load_depth(tmp_path / "d.npy")
     np.testing.assert_allclose(cap.points_cam, backproject(np.nan_to_num(depth), k), rtol=1e-6, equal_nan=True)
     np.save(tmp_path / "mm.npy", depth * 1000)
-    np.testing.assert_allclose(load_depth(tmp_path / "mm.npy", depth_scale=1000).points_cam, cap.points_cam,
-                               rtol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(
+        load_depth(tmp_path / "mm.npy", depth_scale=1000).points_cam, cap.points_cam, rtol=1e-5, equal_nan=True
+    )
 
 
 def test_depth_of_another_size_scales_kinect_intrinsics(tmp_path: Path, caplog) -> None:

@@ -38,8 +38,14 @@ def env(tmp_path: Path) -> dict[str, str]:
 
 def run_cli(args: list, env: dict, cwd: Path, timeout: float = LIMIT) -> subprocess.CompletedProcess:
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "shapeviewer.cli", *map(str, args)], cwd=cwd, env=env,
-                         capture_output=True, text=True, timeout=timeout + 30)
+    out = subprocess.run(
+        [sys.executable, "-m", "shapeviewer.cli", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout + 30,
+    )
     out.seconds = time.monotonic() - t0
     return out
 
@@ -88,11 +94,16 @@ def _write_meshes(folder: Path) -> None:
     box.export(folder / "open_box.ply")
 
 
-@pytest.mark.parametrize("mesh, words", [("points.ply", ["points.ply", "no triangles"]),
-                                         ("nothing.obj", ["nothing.obj", "no triangles"]),
-                                         ("triangle.ply", ["triangle.ply", "flat"]),
-                                         ("garbage.ply", ["garbage.ply", "not a readable mesh"]),
-                                         ("missing.ply", ["missing.ply", "not found"])])
+@pytest.mark.parametrize(
+    "mesh, words",
+    [
+        ("points.ply", ["points.ply", "no triangles"]),
+        ("nothing.obj", ["nothing.obj", "no triangles"]),
+        ("triangle.ply", ["triangle.ply", "flat"]),
+        ("garbage.ply", ["garbage.ply", "not a readable mesh"]),
+        ("missing.ply", ["missing.ply", "not found"]),
+    ],
+)
 def test_grasp_on_a_bad_mesh(tmp_path, env, mesh, words):
     _write_meshes(tmp_path)
     out = run_cli(["grasp", mesh, "--out", "grasps.json", "--budget", "30"], env, tmp_path)
@@ -127,8 +138,14 @@ HANGING_VHACD = textwrap.dedent("""
 def test_grasp_budget_bounds_a_hanging_decomposition(tmp_path, env):
     _write_meshes(tmp_path)
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-c", HANGING_VHACD, "grasp", "box.ply", "--out", "grasps.json",
-                          "--budget", "8"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=90)
+    out = subprocess.run(
+        [sys.executable, "-c", HANGING_VHACD, "grasp", "box.ply", "--out", "grasps.json", "--budget", "8"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
     out.seconds = time.monotonic() - t0
     assert_one_line_error(out, "V-HACD", "did not finish")
     assert out.seconds < 8 + 10, f"--budget 8 took {out.seconds:.1f} s"
@@ -209,9 +226,28 @@ def _interrupt(proc: subprocess.Popen, children: list[int]) -> float:
 
 
 def test_ctrl_c_stops_a_command_with_worker_processes(tmp_path, env):
-    proc = subprocess.Popen([sys.executable, "-m", "shapeviewer.cli", "generate", "--out", "gen", "--views", "1",
-                             "--workers", "2", "--objects", "ycb/002_master_chef_can", "ycb/003_cracker_box"],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "shapeviewer.cli",
+            "generate",
+            "--out",
+            "gen",
+            "--views",
+            "1",
+            "--workers",
+            "2",
+            "--objects",
+            "ycb/002_master_chef_can",
+            "ycb/003_cracker_box",
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while len(descendants(proc.pid)) < 2 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -227,8 +263,14 @@ def test_ctrl_c_stops_a_command_with_worker_processes(tmp_path, env):
 def test_ctrl_c_stops_grasp_planning_and_its_vhacd_child(tmp_path, env):
     """The issue's case: V-HACD never returns and the command used to ignore SIGINT."""
     _write_meshes(tmp_path)
-    proc = subprocess.Popen([sys.executable, "-c", HANGING_VHACD, "grasp", "box.ply", "--out", "grasps.json"],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HANGING_VHACD, "grasp", "box.ply", "--out", "grasps.json"],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while not descendants(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -241,9 +283,14 @@ def test_ctrl_c_stops_grasp_planning_and_its_vhacd_child(tmp_path, env):
 
 def test_ctrl_c_stops_the_app(tmp_path, env):
     (tmp_path / "results").mkdir()
-    proc = subprocess.Popen([sys.executable, str(ROOT / "app.py"), "--port", str(free_port()), "--cloud", MUG,
-                             "--results", "results"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "app.py"), "--port", str(free_port()), "--cloud", MUG, "--results", "results"],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 120
     lines = []
     while time.monotonic() < deadline:

@@ -35,10 +35,13 @@ def test_index_to_view_to_mesh_download(tmp_path):
             page.get_by_text(name, exact=True).first.wait_for(timeout=10_000)
             page.get_by_role("combobox", name="Object").click()
             page.get_by_role("option", name=f"{name} ·").first.click()
-            wait_until(lambda: app.dataset.shown is not None and app.dataset.shown.info.object == name, 20,
-                       "the view to be shown")
+            wait_until(
+                lambda: app.dataset.shown is not None and app.dataset.shown.info.object == name,
+                20,
+                "the view to be shown",
+            )
             assert app.dataset.active and app.dataset.shown.info.view == view
-            assert f"/dataset/truth" in app.dataset.drawn
+            assert "/dataset/truth" in app.dataset.drawn
 
             # Export the ground truth (full resolution, camera frame) through a browser download.
             # (The Pipeline tab has a Mesh dropdown too, hidden in its tab.)

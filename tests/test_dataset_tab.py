@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.evaluation import run as ev
 from shapeviewer.camera import transform_points
-from shapeviewer.grasp.serialize import grasps_from_json
+from shapeviewer.evaluation import run as ev
 from shapeviewer.evaluation.results import ResultsStore, view_stem
+from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view
 
@@ -77,8 +77,10 @@ def test_select_draws_the_view_side_by_side(app):
     assert f"{ROOT}/sensor" in drawn
     # Left to right as in the paper's Fig. 1, in one common pose: every completion is its truth-aligned
     # box moved by the same map as the truth, one column further right.
-    xs = [np.asarray(drawn[f"{ROOT}/{k}"].vertices if k != "points" else drawn[f"{ROOT}/{k}"].points).mean(0)[0]
-          for k in ("truth", "points", "Partial", "Ours-fast", "Ours-detailed")]
+    xs = [
+        np.asarray(drawn[f"{ROOT}/{k}"].vertices if k != "points" else drawn[f"{ROOT}/{k}"].points).mean(0)[0]
+        for k in ("truth", "points", "Partial", "Ours-fast", "Ours-detailed")
+    ]
     assert xs == sorted(xs)
     L = d.shown.layout
     assert np.allclose(L.T_display_cam["Ours-fast"][:3, :3], L.T_display_cam["truth"][:3, :3])

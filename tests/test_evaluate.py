@@ -114,8 +114,23 @@ def test_resume_skips_done_views(run, monkeypatch):
 
 def test_cli_evaluate(run, capsys):
     out, _ = run
-    assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--workers", "1", "--no-progress",
-                 "--backend", "process"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--out",
+                str(out),
+                "--views-per-set",
+                "1",
+                "--workers",
+                "1",
+                "--no-progress",
+                "--backend",
+                "process",
+            ]
+        )
+        == 0
+    )
     assert "Table III" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main(["evaluate", "--out", str(out), "--backend", "threads"])
@@ -156,10 +171,28 @@ def test_world_frame_is_level_camera():
 
 
 def test_grasp_means_and_pending():
-    rows = [{"epsilon_planned": 0.1, "epsilon_executed": -0.2, "joint_error_deg": 2.0, "pose_error_mm": 4.0,
-             "volume_planned": 1.0, "volume_executed": 0.5, "start_clear": 1.0, "lift_success": 0.0},
-            {"epsilon_planned": 0.05, "epsilon_executed": 0.01, "joint_error_deg": 4.0, "pose_error_mm": 0.0,
-             "volume_planned": 1.0, "volume_executed": 0.5, "start_clear": 0.0, "lift_success": 1.0}]
+    rows = [
+        {
+            "epsilon_planned": 0.1,
+            "epsilon_executed": -0.2,
+            "joint_error_deg": 2.0,
+            "pose_error_mm": 4.0,
+            "volume_planned": 1.0,
+            "volume_executed": 0.5,
+            "start_clear": 1.0,
+            "lift_success": 0.0,
+        },
+        {
+            "epsilon_planned": 0.05,
+            "epsilon_executed": 0.01,
+            "joint_error_deg": 4.0,
+            "pose_error_mm": 0.0,
+            "volume_planned": 1.0,
+            "volume_executed": 0.5,
+            "start_clear": 0.0,
+            "lift_success": 1.0,
+        },
+    ]
     m = ev.grasp_means(rows)
     assert m["joint_error_deg"] == 3.0 and m["pose_error_mm"] == 2.0 and m["lift_success"] == 0.5
     assert m["force_closure_planned"] == 1.0 and m["force_closure_executed"] == 0.5
@@ -167,9 +200,13 @@ def test_grasp_means_and_pending():
     empty = ev.grasp_means([])
     assert math.isnan(empty["joint_error_deg"]) and empty["lift_success_best"] == 0.0
     opts = ev.GraspOptions(methods=("Partial", "Mirror", "Ours-detailed"))
-    record = {"grasps": [{"method": "Partial", "hand": "barrett", "error": ""},
-                         {"method": "Mirror", "hand": "barrett", "error": "RuntimeError: crash"},
-                         {"method": "Ours-detailed", "hand": "panda", "error": ""}]}
+    record = {
+        "grasps": [
+            {"method": "Partial", "hand": "barrett", "error": ""},
+            {"method": "Mirror", "hand": "barrett", "error": "RuntimeError: crash"},
+            {"method": "Ours-detailed", "hand": "panda", "error": ""},
+        ]
+    }
     assert ev.pending_grasps(record, opts) == ["Mirror", "Ours-detailed"]
     with pytest.raises(ValueError):
         ev.GraspOptions(methods=("Ours",))
@@ -185,8 +222,9 @@ def grasp_run(run, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("eval_grasps") / "out"
     shutil.copytree(run[0], out)
-    options = ev.GraspOptions(methods=GRASP_METHODS, n_grasps=2,
-                              settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8))
+    options = ev.GraspOptions(
+        methods=GRASP_METHODS, n_grasps=2, settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8)
+    )
 
     def no_completion(*a, **k):
         raise AssertionError("completions were recomputed")
@@ -218,8 +256,11 @@ def test_grasp_stage_records(grasp_run):
             # The entry's means are those of the saved grasps.
             assert g["pose_error_mm"] == pytest.approx(np.mean([e.pose_error for e in gs.executions]))
     rows = list(csv.DictReader(open(out / "grasp_rows.csv")))
-    assert len(rows) == len(r["grasp_rows"]) == sum(g["n"] for n, v, _ in ev.sample_views(1, 0)
-                                                     for g in rec.load_view(out, n, v)["grasps"])
+    assert (
+        len(rows)
+        == len(r["grasp_rows"])
+        == sum(g["n"] for n, v, _ in ev.sample_views(1, 0) for g in rec.load_view(out, n, v)["grasps"])
+    )
     assert set(rec.GRASP_ROW_FIELDS) <= set(rows[0])
 
 
@@ -230,8 +271,9 @@ def test_grasp_tables(grasp_run):
     for paper in ("6.09", "4.56", "16.0", "13.2", "71.4%", "93.3%"):
         assert paper in md
     cells = [x for x in csv.DictReader(open(out / "tables.csv")) if x["table"] == "IV-V"]
-    assert {(x["view_set"], x["method"]) for x in cells} == {(s, m) for s in (*PAPER_SETS, "all")
-                                                             for m in GRASP_METHODS}
+    assert {(x["view_set"], x["method"]) for x in cells} == {
+        (s, m) for s in (*PAPER_SETS, "all") for m in GRASP_METHODS
+    }
     for x in cells:
         for k in ("joint_error_deg", "pose_error_mm", "joint_error_deg_median", "pose_error_mm_median"):
             assert math.isfinite(float(x[k])) and float(x[k]) >= 0
@@ -248,8 +290,26 @@ def test_grasp_resume_skips_done(grasp_run, monkeypatch, capsys):
     assert calls == [] and again["computed"] == 0 and again["skipped"] == 3
     assert again["grasp_rows"] == first["grasp_rows"]
     # The command line with the same hand and methods finds nothing to do either.
-    assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--workers", "1", "--no-progress",
-                 "--grasps", "--n-grasps", "2", "--grasp-methods", *GRASP_METHODS]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--out",
+                str(out),
+                "--views-per-set",
+                "1",
+                "--workers",
+                "1",
+                "--no-progress",
+                "--grasps",
+                "--n-grasps",
+                "2",
+                "--grasp-methods",
+                *GRASP_METHODS,
+            ]
+        )
+        == 0
+    )
     assert calls == [] and "Table IV" in capsys.readouterr().out
     assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--grasps", "--grasp-methods", "Ours"]) == 2
 
@@ -262,14 +322,24 @@ def test_ray_backend_gives_the_same_records(grasp_run, tmp_path):
     views = ev.sample_views(1, 0)[:2]
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
-        assert ev.run_views(tmp_path, views, seed=0, backend="ray", progress=False,
-                            grasps=dataclasses.replace(options, methods=("Partial",))) == 2
+        assert (
+            ev.run_views(
+                tmp_path,
+                views,
+                seed=0,
+                backend="ray",
+                progress=False,
+                grasps=dataclasses.replace(options, methods=("Partial",)),
+            )
+            == 2
+        )
     finally:
         ray.shutdown()
 
     def same(d: dict) -> str:  # JSON text: NaN metrics of a failed method compare equal
-        return json.dumps({k: v for k, v in d.items() if k not in ("seconds", "seconds_plan", "seconds_execute")},
-                          sort_keys=True)
+        return json.dumps(
+            {k: v for k, v in d.items() if k not in ("seconds", "seconds_plan", "seconds_execute")}, sort_keys=True
+        )
 
     for n, v, _ in views:
         a, b = rec.load_view(out, n, v), rec.load_view(tmp_path, n, v)

@@ -25,8 +25,14 @@ TIMEOUT = 180  # seconds; each example takes 10-20 s on 2 idle cores
 def run_example(name: str, out: Path) -> str:
     """Run ``examples/name OUT`` from a foreign working directory; its stdout."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run([sys.executable, str(EXAMPLES / name), str(out)], cwd=out.parent, env=env,
-                          capture_output=True, text=True, timeout=TIMEOUT)
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), str(out)],
+        cwd=out.parent,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT,
+    )
     assert proc.returncode == 0, f"{name} failed:\n{proc.stdout}\n{proc.stderr}"
     return proc.stdout
 
@@ -44,8 +50,11 @@ def test_examples_are_short_and_use_only_the_public_api(name):
     imported = [a.name for node in ast.walk(tree) if isinstance(node, ast.Import) for a in node.names]
     imported += [node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)]
     assert [m for m in imported if m and m.startswith("shapeviewer")] == ["shapeviewer"], name
-    used = {node.attr for node in ast.walk(tree)
-            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "sv"}
+    used = {
+        node.attr
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "sv"
+    }
     assert used and used <= set(shapeviewer.__all__), f"{name} uses {sorted(used - set(shapeviewer.__all__))}"
 
 

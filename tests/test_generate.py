@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from shapeviewer.generate import GenerationConfig, generate, generate_object, orientation, view_pose
 from shapeviewer.sim import catalogue
-from shapeviewer.generate import (GenerationConfig, generate, generate_object, orientation, view_pose,
-                                  write_manifest)
 from shapeviewer.train import load_grid_sets
-from shapeviewer.voxel import GridFrame, points_to_grid
+from shapeviewer.voxel import GridFrame
 
 
 def _unpack(a):
@@ -35,7 +34,14 @@ def test_pairs_have_x_mostly_inside_y_in_the_right_frame(generated):
     assert summary["errors"] == []
     for name in ("ycb/025_mug", "ycb/003_cracker_box"):
         with np.load(out / "shards" / (name.replace("/", "__") + ".npz")) as z:
-            x, y, views, centers, sizes, T = _unpack(z["x"]), _unpack(z["y"]), z["views"], z["center"], z["voxel_size"], z["T_cam_obj"]
+            x, y, views, centers, sizes, T = (
+                _unpack(z["x"]),
+                _unpack(z["y"]),
+                z["views"],
+                z["center"],
+                z["voxel_size"],
+                z["T_cam_obj"],
+            )
         assert len(views) >= 4
         assert (x.sum((1, 2, 3)) >= 100).all()  # the paper's rejection rule
         inside = (x & y).sum((1, 2, 3)) / x.sum((1, 2, 3))
@@ -70,8 +76,10 @@ def test_rejection_rule_drops_views_with_too_few_voxels(tmp_path, monkeypatch):
 def test_manifest_and_splits(generated):
     out, cfg, _ = generated
     manifest = json.loads((out / "manifest.json").read_text())
-    assert {s["object"]: s["split"] for s in manifest["shards"]} == {"ycb/025_mug": "train",
-                                                                    "ycb/003_cracker_box": "holdout_model"}
+    assert {s["object"]: s["split"] for s in manifest["shards"]} == {
+        "ycb/025_mug": "train",
+        "ycb/003_cracker_box": "holdout_model",
+    }
     sets = load_grid_sets(out)
     assert len(sets["holdout_model"]) == sum(s["views"] for s in manifest["shards"] if s["split"] == "holdout_model")
     assert set(sets["training_view"].objects) | set(sets["holdout_view"].objects) == {"ycb/025_mug"}
@@ -97,8 +105,9 @@ def test_ray_backend_gives_the_same_shards(generated, tmp_path):
     ray = pytest.importorskip("ray")
     out, cfg, _ = generated
     try:
-        r = generate(tmp_path, cfg, objects=["ycb/025_mug", "ycb/003_cracker_box"], workers=2, backend="ray",
-                     progress=False)
+        r = generate(
+            tmp_path, cfg, objects=["ycb/025_mug", "ycb/003_cracker_box"], workers=2, backend="ray", progress=False
+        )
     finally:
         ray.shutdown()
     assert r["errors"] == [] and r["objects"] == 2

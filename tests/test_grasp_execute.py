@@ -61,8 +61,11 @@ def test_joint_error_units():
     # Six finger joints (the spread is not one): 6 degrees over six joints.
     assert E.joint_error(hand, planned, executed) == pytest.approx(1.0)
     panda = get_hand("panda")
-    assert E.joint_error(panda, {"left_finger_joint": 0.01, "right_finger_joint": 0.0},
-                         {"left_finger_joint": 0.012, "right_finger_joint": 0.0}) == pytest.approx(1.0)
+    assert E.joint_error(
+        panda,
+        {"left_finger_joint": 0.01, "right_finger_joint": 0.0},
+        {"left_finger_joint": 0.012, "right_finger_joint": 0.0},
+    ) == pytest.approx(1.0)
 
 
 def test_lift_succeeds_on_a_good_grasp_and_fails_far_away(grasps, executions, box):
@@ -104,17 +107,30 @@ def test_json_round_trip_is_exact(grasps, executions, box):
 def test_scene_zip_loads_in_pybullet(grasps, box, tmp_path):
     data = X.scene_zip(box, grasps)
     with zipfile.ZipFile(io.BytesIO(data)) as z:
-        assert {"object.obj", "object_collision.obj", "object.urdf", "grasps.json", "README.txt",
-                "hands/barrett_bh8_280.urdf"} <= set(z.namelist())
+        assert {
+            "object.obj",
+            "object_collision.obj",
+            "object.urdf",
+            "grasps.json",
+            "README.txt",
+            "hands/barrett_bh8_280.urdf",
+        } <= set(z.namelist())
         z.extractall(tmp_path)
     c = p.connect(p.DIRECT)
     try:
         obj = p.loadURDF(str(tmp_path / "object.urdf"), useFixedBase=True, physicsClientId=c)
         g = json.loads((tmp_path / "grasps.json").read_text())["grasps"][0]
-        hand = p.loadURDF(str(tmp_path / "hands" / "barrett_bh8_280.urdf"), g["position"], g["quaternion_xyzw"],
-                          useFixedBase=True, physicsClientId=c)
-        index = {p.getJointInfo(hand, i, physicsClientId=c)[1].decode(): i
-                 for i in range(p.getNumJoints(hand, physicsClientId=c))}
+        hand = p.loadURDF(
+            str(tmp_path / "hands" / "barrett_bh8_280.urdf"),
+            g["position"],
+            g["quaternion_xyzw"],
+            useFixedBase=True,
+            physicsClientId=c,
+        )
+        index = {
+            p.getJointInfo(hand, i, physicsClientId=c)[1].decode(): i
+            for i in range(p.getNumJoints(hand, physicsClientId=c))
+        }
         for name, q in zip(g["joint_names"], g["joint_values"]):
             p.resetJointState(hand, index[name], q, physicsClientId=c)
         rows = p.getClosestPoints(hand, obj, 0.002, physicsClientId=c)

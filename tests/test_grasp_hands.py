@@ -109,7 +109,8 @@ def test_hand_mesh_in_palm_frame(name):
     # The palm body lies behind the palm face (z < 0) and the fingers reach forward (z > 0).
     assert lo[2] < -0.02 and hi[2] > 0.04
     assert len(H.hand_meshes(hand, hand.joints_from_dofs(hand.dof_open))) == sum(
-        len(g) for g in hand.model.visuals.values())
+        len(g) for g in hand.model.visuals.values()
+    )
 
 
 def test_close_barrett_around_cube_touches_every_finger():
@@ -130,8 +131,12 @@ def test_close_barrett_around_cube_touches_every_finger():
         for c in result.contacts:
             assert -1e-4 < c.distance <= world.contact_tol
             assert np.max(np.abs(c.position)) <= 0.03 + 1e-3  # on the cube's surface
-        q = grasp_quality([c.position for c in result.contacts], [c.normal for c in result.contacts],
-                          np.zeros(3), max_radius(cube.vertices, np.zeros(3)))
+        q = grasp_quality(
+            [c.position for c in result.contacts],
+            [c.normal for c in result.contacts],
+            np.zeros(3),
+            max_radius(cube.vertices, np.zeros(3)),
+        )
         assert q.force_closure and q.volume > 0
 
 
@@ -207,7 +212,6 @@ def test_movable_object_uses_cached_decomposition(tmp_path, monkeypatch):
         np.testing.assert_allclose(world.object_pose(body), T, atol=1e-9)
         # The notch of the L stays empty: a point there is outside every part.
         probe = p.createCollisionShape(p.GEOM_SPHERE, radius=0.002, physicsClientId=world.client)
-        sphere = p.createMultiBody(0, probe, basePosition=[0.1 + 0.01, 0.2 + 0.03, 0.3],
-                                   physicsClientId=world.client)
+        sphere = p.createMultiBody(0, probe, basePosition=[0.1 + 0.01, 0.2 + 0.03, 0.3], physicsClientId=world.client)
         rows = p.getClosestPoints(sphere, body, 0.05, physicsClientId=world.client)
         assert min(r[8] for r in rows) > 0.003

@@ -48,7 +48,8 @@ def check_grasps(grasps: list[P.Grasp], mesh: trimesh.Trimesh) -> None:
         assert all(links & set(f.links) for f in hand.fingers)
     assert best.epsilon > 0.0 and best.volume > 0.0
     assert [g.epsilon for g in grasps if g.force_closure] == sorted(
-        (g.epsilon for g in grasps if g.force_closure), reverse=True)
+        (g.epsilon for g in grasps if g.force_closure), reverse=True
+    )
     for g in grasps:
         assert g.approach[2] <= 1e-6  # never from below the table
         assert g.frame == "world" and g.T_world_palm.shape == (4, 4)
@@ -59,7 +60,7 @@ def check_grasps(grasps: list[P.Grasp], mesh: trimesh.Trimesh) -> None:
         assert d.max() < 0.004
     # Distinct: no two grasps within 1 cm and 15 degrees of each other.
     for i, a in enumerate(grasps):
-        for b in grasps[i + 1:]:
+        for b in grasps[i + 1 :]:
             dp = np.linalg.norm(a.position - b.position)
             cos = (np.trace(a.T_world_palm[:3, :3].T @ b.T_world_palm[:3, :3]) - 1) / 2
             assert dp > DISTINCT_POSITION or cos < math.cos(DISTINCT_ANGLE)
@@ -87,8 +88,9 @@ def test_cheap_stage_agrees_with_pybullet(box):
     """The palm positions the cheap stage predicts are where pybullet's approach stops."""
     hs = hand_samples("barrett")
     obj = ObjectField(box)
-    found, evaluations, _ = search(obj, hs, np.random.default_rng(0), True, SMALL, lambda f: None,
-                                   lambda: False, lambda: False)
+    found, evaluations, _ = search(
+        obj, hs, np.random.default_rng(0), True, SMALL, lambda f: None, lambda: False, lambda: False
+    )
     # Every random sample points down or sideways; annealing proposals pointing up are not evaluated.
     assert SMALL.samples < evaluations <= SMALL.samples + SMALL.chains * SMALL.steps
     order = np.argsort(found.energy)

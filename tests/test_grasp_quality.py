@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from shapeviewer.grasp.quality import (
-    GraspQuality, contact_wrenches, friction_cone, grasp_quality, max_radius, wrench_space_quality,
+    GraspQuality,
+    contact_wrenches,
+    friction_cone,
+    grasp_quality,
+    max_radius,
+    wrench_space_quality,
 )
 
 R = 0.05  # sphere radius (m)
@@ -47,10 +52,13 @@ def test_max_radius():
     assert max_radius(verts, np.array([0, 0, 1.0])) == pytest.approx(4.0)
 
 
-@pytest.mark.parametrize("directions", [
-    [[1, 0, 0], [-0.5, np.sqrt(3) / 2, 0], [-0.5, -np.sqrt(3) / 2, 0]],  # three around the equator
-    [[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]],  # a tetrahedron
-])
+@pytest.mark.parametrize(
+    "directions",
+    [
+        [[1, 0, 0], [-0.5, np.sqrt(3) / 2, 0], [-0.5, -np.sqrt(3) / 2, 0]],  # three around the equator
+        [[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]],  # a tetrahedron
+    ],
+)
 def test_symmetric_contacts_on_a_sphere_are_force_closure(directions):
     points, normals = on_sphere(directions)
     q = grasp_quality(points, normals, np.zeros(3), R)

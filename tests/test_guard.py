@@ -40,8 +40,9 @@ def http_get(port: int, path: str = "/", host: str | None = None, **headers: str
         conn.close()
 
 
-def ws_connect(port: int, origin: str | None = None, path: str = "/", host: str | None = None,
-               cookie: str | None = None) -> str:
+def ws_connect(
+    port: int, origin: str | None = None, path: str = "/", host: str | None = None, cookie: str | None = None
+) -> str:
     """Open viser's WebSocket on 127.0.0.1:``port`` (``host`` is only what the Host header says):
     ``"ok"`` once the server sent its first message, else ``"refused <status>"``."""
 
@@ -49,8 +50,15 @@ def ws_connect(port: int, origin: str | None = None, path: str = "/", host: str 
         uri = f"ws://{host or f'127.0.0.1:{port}'}{path}"
         headers = {"Cookie": cookie} if cookie else None
         try:
-            async with websockets.connect(uri, origin=origin, subprotocols=[SUBPROTOCOL], host="127.0.0.1",
-                                          port=port, additional_headers=headers, open_timeout=10) as ws:
+            async with websockets.connect(
+                uri,
+                origin=origin,
+                subprotocols=[SUBPROTOCOL],
+                host="127.0.0.1",
+                port=port,
+                additional_headers=headers,
+                open_timeout=10,
+            ) as ws:
                 await asyncio.wait_for(ws.recv(), 10)
                 return "ok"
         except InvalidStatus as e:
@@ -85,8 +93,9 @@ def test_loopback_server_needs_no_token(local_server):
         assert http_get(port, host=f"{name}:{port}")[0] == 200
 
 
-@pytest.mark.parametrize("origin", ["http://evil.example", "null", "http://127.0.0.1:1", "file://",
-                                    "http://localhost.evil.example"])
+@pytest.mark.parametrize(
+    "origin", ["http://evil.example", "null", "http://127.0.0.1:1", "file://", "http://localhost.evil.example"]
+)
 def test_foreign_origin_websocket_is_refused(local_server, origin):
     port, _ = local_server
     assert ws_connect(port, origin=origin) == "refused 403"
@@ -99,8 +108,9 @@ def test_own_origin_websocket_works(local_server):
     assert ws_connect(port) == "ok"  # no Origin: not a browser, e.g. the benchmark's client
 
 
-@pytest.mark.parametrize("host", ["evil.example:{port}", "127.0.0.1.evil.example:{port}", "127.0.0.1:{other}",
-                                  "127.0.0.1"])
+@pytest.mark.parametrize(
+    "host", ["evil.example:{port}", "127.0.0.1.evil.example:{port}", "127.0.0.1:{other}", "127.0.0.1"]
+)
 def test_foreign_host_is_refused(local_server, host):
     """DNS rebinding: a foreign name resolved to 127.0.0.1 still sends that name as Host."""
     port, _ = local_server

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from shapeviewer.geometry import raycasting_scene
-from shapeviewer.sim import catalogue
-from shapeviewer.sim import household
+from shapeviewer.sim import catalogue, household
 
 INDICES = (0, 1, 7)
 HOLLOW = ("mug", "cup", "bowl", "pitcher")
@@ -96,7 +95,9 @@ def test_catalogue_lists_every_kind_with_both_splits():
     assert e.path == "household:mug/3" and e.scale == (1.0, 1.0, 1.0) and e.split == catalogue.model_split(e.name)
     assert catalogue.view_split("household/mug_003", 5) in ("training_view", "holdout_view", "holdout_model")
     # the rest of the catalogue is still there
-    assert any(x.source == "ycb" for x in catalogue.catalogue()) and any(x.name.startswith("random/") for x in catalogue.catalogue())
+    assert any(x.source == "ycb" for x in catalogue.catalogue()) and any(
+        x.name.startswith("random/") for x in catalogue.catalogue()
+    )
 
 
 def test_load_mesh_builds_and_caches(tmp_path, monkeypatch):

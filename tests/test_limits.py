@@ -31,8 +31,10 @@ MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
 def write_pcd(path: Path, points: np.ndarray) -> Path:
     """An unorganized binary PCD of float32 x y z (camera frame, metres)."""
     n = len(points)
-    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\n"
-              f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n")
+    header = (
+        f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\n"
+        f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    )
     path.write_bytes(header.encode() + np.ascontiguousarray(points, dtype="<f4").tobytes())
     return path
 
@@ -149,11 +151,15 @@ def test_the_browser_gets_a_decimated_cloud(app, tmp_path: Path) -> None:
     np.save(tmp_path / "dense.npy", dense_copy(3))  # 724k points, all kept for computation
     assert app.load_cloud(tmp_path / "dense.npy")
     assert app.scene.capture.original_points is None and len(app.scene.capture.points_cam) > 700_000
-    sent = {name: len(h.points) for name, h in app.drawing.nodes.items() if name.startswith(("/cloud/", "/segments/seg_"))}
+    sent = {
+        name: len(h.points) for name, h in app.drawing.nodes.items() if name.startswith(("/cloud/", "/segments/seg_"))
+    }
     assert sum(sent.values()) <= 300_000
     assert "showing" in app.panel.source.content
     # Picking and completion keep every point of the segments.
-    assert sum(len(p) for p in app.scene.points_world.values()) == sum(len(s.points_cam) for s in app.scene.segments.values())
+    assert sum(len(p) for p in app.scene.points_world.values()) == sum(
+        len(s.points_cam) for s in app.scene.segments.values()
+    )
 
 
 HUGE_LOAD = textwrap.dedent("""
@@ -183,8 +189,12 @@ def test_a_5m_point_capture_is_accepted_within_10_s_and_2_gb(tmp_path: Path) -> 
     assert len(big) == 5_000_000
     write_pcd(tmp_path / "huge.pcd", big)
     del big
-    out = subprocess.run([sys.executable, "-c", HUGE_LOAD, str(MUG), str(tmp_path / "huge.pcd"), str(free_port())],
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", HUGE_LOAD, str(MUG), str(tmp_path / "huge.pcd"), str(free_port())],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     r = json.loads(next(line for line in out.stdout.splitlines() if line.startswith("{")))
     assert r["ok"], r["error"]

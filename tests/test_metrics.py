@@ -55,11 +55,14 @@ def test_jaccard_counts_every_voxel_a_solid_touches():
     assert score == pytest.approx(7 / 13, rel=0.025)
 
 
-@pytest.mark.parametrize("solid, volume", [
-    (_sphere(0.05), 4 / 3 * np.pi * 0.05**3),
-    # Non-convex with a hole: columns cross its surface up to four times.
-    (trimesh.creation.torus(0.04, 0.015, major_sections=64, minor_sections=32), 2 * np.pi**2 * 0.04 * 0.015**2),
-])
+@pytest.mark.parametrize(
+    "solid, volume",
+    [
+        (_sphere(0.05), 4 / 3 * np.pi * 0.05**3),
+        # Non-convex with a hole: columns cross its surface up to four times.
+        (trimesh.creation.torus(0.04, 0.015, major_sections=64, minor_sections=32), 2 * np.pi**2 * 0.04 * 0.015**2),
+    ],
+)
 def test_interior_is_filled_exactly(solid, volume):
     # Inside a box that fills the common box, the index is the solid's voxelized volume over the box's.
     solid = solid.copy()

@@ -16,7 +16,7 @@ def code_blocks(text: str) -> list[str]:
 
 def python_api_section() -> str:
     start = README.index("## Python API")
-    return README[start:README.index("\n## ", start + 1)]
+    return README[start : README.index("\n## ", start + 1)]
 
 
 def test_readme_names_only_files_in_the_repository():
@@ -30,9 +30,9 @@ def test_readme_names_only_files_in_the_repository():
 
 
 def test_run_and_test_blocks_install_what_they_need():
-    blocks = code_blocks(README[README.index("## Run"):README.index("### Dataset tab")])
+    blocks = code_blocks(README[README.index("## Run") : README.index("### Dataset tab")])
     run = blocks[0].strip()
-    test = code_blocks(README[README.index("## Test"):README.index("## Command line")])[0].strip()
+    test = code_blocks(README[README.index("## Test") : README.index("## Command line")])[0].strip()
     assert run.startswith("bash tools/install.sh") and run.endswith("python app.py")
     assert test == "bash tools/install.sh --test && python -m pytest -q"
     ci = (ROOT / ".ci" / "run").read_text()
@@ -47,7 +47,7 @@ def test_python_api_examples_run_as_written(monkeypatch):
     """The README's Python blocks, run in order from the repository root: the public API they show exists
     and does what they say (a closed mesh from a real capture)."""
     monkeypatch.chdir(ROOT)
-    blocks = re.findall(r"```python\n(.*?)```", README[README.index("## Python API"):], flags=re.S)
+    blocks = re.findall(r"```python\n(.*?)```", README[README.index("## Python API") :], flags=re.S)
     assert blocks, "the README lost its Python API examples"
     scope: dict = {}
     exec(compile("\n".join(blocks), "README.md", "exec"), scope)  # noqa: S102 - our own README
@@ -64,8 +64,9 @@ def test_python_api_section_lists_exactly_the_public_api():
     listed = re.findall(r"^\| `(\w+)` \|", section, flags=re.M)
     assert len(listed) == len(set(listed)), f"listed twice: {sorted(n for n in listed if listed.count(n) > 1)}"
     public = set(shapeviewer.__all__)
-    assert set(listed) == public, (f"missing from the README: {sorted(public - set(listed))}; "
-                                   f"not public: {sorted(set(listed) - public)}")
+    assert set(listed) == public, (
+        f"missing from the README: {sorted(public - set(listed))}; not public: {sorted(set(listed) - public)}"
+    )
     used = set(re.findall(r"\b(?:shapeviewer|sv)\.(\w+)", section))
     for names in re.findall(r"from shapeviewer import ([\w, ]+)", section):
         used |= {n.strip() for n in names.split(",")}

@@ -68,8 +68,9 @@ def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
     timings = {}
     mesh = detailed_mesh(probs, frame, pts, timings=timings)
     assert mesh.is_watertight
-    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=mesh.vertices.astype(np.float32),
-                                            tri_verts=mesh.faces.astype(np.uint32)))
+    m = manifold3d.Manifold(
+        manifold3d.Mesh(vert_properties=mesh.vertices.astype(np.float32), tri_verts=mesh.faces.astype(np.uint32))
+    )
     assert m.status() == manifold3d.Error.NoError
     assert set(timings) >= {"density", "upsample", "merge", "fill_gaps", "smooth", "marching_cubes"}
     truth = box.copy().apply_transform(T)

@@ -77,7 +77,8 @@ def test_objects_filters_and_orders(folder):
     mug = store.object("ycb/025_mug")
     assert mug.views == 2 and mug.split == "train" and mug.source == "ycb" and mug.extents[2] > 0.05
     assert mug.mean("Ours-fast", "jaccard") == pytest.approx(
-        np.mean([jaccard_of("ycb/025_mug", v, "Ours-fast") for n, v in VIEWS if n == "ycb/025_mug"]))
+        np.mean([jaccard_of("ycb/025_mug", v, "Ours-fast") for n, v in VIEWS if n == "ycb/025_mug"])
+    )
     # Worst Jaccard first, and the reverse for a distance (larger is worse).
     worst = store.objects(order="worst", method="Ours-fast", metric="jaccard")
     js = [o.mean("Ours-fast", "jaccard") for o in worst]
@@ -191,8 +192,12 @@ def test_sync_is_incremental_and_forgets_deleted_views(folder):
 
 
 def test_parse_rejects_a_view_file_without_rows(tmp_path):
-    for text, why in (("[]", "no rows"), ('{"object": "a", "view": 1}', "no 'rows'"), ("3", "not a view"),
-                      ('[{"view": 1, "method": "Partial"}]', "no object name")):
+    for text, why in (
+        ("[]", "no rows"),
+        ('{"object": "a", "view": 1}', "no 'rows'"),
+        ("3", "not a view"),
+        ('[{"view": 1, "method": "Partial"}]', "no object name"),
+    ):
         with pytest.raises(ViewFileError, match=why):
             parse_view_file(text, tmp_path)
 

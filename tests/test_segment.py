@@ -50,11 +50,16 @@ def _scene(extra: list[np.ndarray] = (), seed: int = 0):
     rng = np.random.default_rng(seed)
     gx, gy = np.meshgrid(np.arange(-0.6, 0.6, SPACING), np.arange(-0.6, 0.6, SPACING))
     table = np.stack([gx.ravel(), gy.ravel(), rng.normal(0, 0.001, gx.size)], -1)
-    objects = [_box((-0.25, 0.1), (0.08, 0.06, 0.12)), _cylinder((0.0, 0.0), 0.04, 0.15),
-               _box((0.25, -0.1), (0.05, 0.05, 0.05)), *extra]
+    objects = [
+        _box((-0.25, 0.1), (0.08, 0.06, 0.12)),
+        _cylinder((0.0, 0.0), 0.04, 0.15),
+        _box((0.25, -0.1), (0.05, 0.05, 0.05)),
+        *extra,
+    ]
     world = np.concatenate([table, *objects, np.full((500, 3), np.nan)])
-    labels = np.concatenate([np.full(len(table), -1)] + [np.full(len(o), k) for k, o in enumerate(objects)]
-                            + [np.full(500, -2)])
+    labels = np.concatenate(
+        [np.full(len(table), -1)] + [np.full(len(o), k) for k, o in enumerate(objects)] + [np.full(500, -2)]
+    )
     T_world_cam = look_at(np.array([0.0, -0.8, 0.7]), np.zeros(3))
     order = rng.permutation(len(world))  # segment indices must survive any row order
     points = transform_points(np.linalg.inv(T_world_cam), world[order])
@@ -127,23 +132,29 @@ def test_determinism() -> None:
     assert [s.indices.tolist() for s in a.segments] == [s.indices.tolist() for s in b.segments]
 
 
-@pytest.mark.parametrize("points, message", [
-    (np.zeros((0, 3)), "empty"),
-    (np.full((100, 3), np.nan), "no finite points"),
-    (np.zeros((10, 2)), r"shape \(N, 3\)"),
-    ([["a", "b", "c"]], "not an array of numbers"),
-    (np.tile([0.0, 0.0, -1.0], (50, 1)), "in front of the camera"),
-])
+@pytest.mark.parametrize(
+    "points, message",
+    [
+        (np.zeros((0, 3)), "empty"),
+        (np.full((100, 3), np.nan), "no finite points"),
+        (np.zeros((10, 2)), r"shape \(N, 3\)"),
+        ([["a", "b", "c"]], "not an array of numbers"),
+        (np.tile([0.0, 0.0, -1.0], (50, 1)), "in front of the camera"),
+    ],
+)
 def test_unusable_input_raises(points, message: str) -> None:
     with pytest.raises(SegmentationError, match=message):
         segment_scene(points)
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"voxel_size": 0.0}, "voxel_size"),
-    ({"cluster_tolerance": 0.005, "voxel_size": 0.01}, "at least voxel_size"),
-    ({"min_height": 0.2, "max_height": 0.1}, "min_height"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"voxel_size": 0.0}, "voxel_size"),
+        ({"cluster_tolerance": 0.005, "voxel_size": 0.01}, "at least voxel_size"),
+        ({"min_height": 0.2, "max_height": 0.1}, "min_height"),
+    ],
+)
 def test_bad_parameters_raise(kwargs: dict, message: str) -> None:
     with pytest.raises(SegmentationError, match=message):
         segment_scene(_box((0, 0), (0.1, 0.1, 0.1)) + [0, 0, 1], **kwargs)
@@ -158,6 +169,7 @@ def test_too_few_points_give_no_segments(n: int) -> None:
 # ---------------------------------------------------------------------------------------------
 # Real captures (PCL test data, ../shared/data/real)
 
+
 def _pixel_boxes(seg, width: int = 640):
     """(row min, row max, col min, col max) of every segment's pixels."""
     out = []
@@ -169,8 +181,11 @@ def _pixel_boxes(seg, width: int = 640):
 
 def _segments_inside(seg, box, min_points: int) -> list:
     r0, r1, c0, c1 = box
-    return [s for s, (a, b, c, d) in zip(seg.segments, _pixel_boxes(seg))
-            if len(s.indices) >= min_points and a >= r0 and b <= r1 and c >= c0 and d <= c1]
+    return [
+        s
+        for s, (a, b, c, d) in zip(seg.segments, _pixel_boxes(seg))
+        if len(s.indices) >= min_points and a >= r0 and b <= r1 and c >= c0 and d <= c1
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -192,8 +207,7 @@ def test_milk_clorox_floor_removed_and_objects_whole(milk_clorox: Capture) -> No
     # everything else is legs and casters of the office chair at the top edge, 1.5-2 m away
     others = [s for s in seg.segments if len(s.indices) < 5000]
     assert len(seg.segments) == 3 + len(others)
-    assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(seg.segments, _pixel_boxes(seg))
-               if s in others)
+    assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(seg.segments, _pixel_boxes(seg)) if s in others)
 
 
 def test_milk_clorox_is_deterministic(milk_clorox: Capture) -> None:

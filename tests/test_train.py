@@ -6,15 +6,29 @@ import torch
 
 from shapeviewer.generate import GenerationConfig, generate
 from shapeviewer.model import load_completer
-from shapeviewer.train import (PLANE_DROPOUT, TrainConfig, augment, bce_loss, evaluate_grids, jaccard_grids,
-                               load_grid_sets, train, warm_start)
+from shapeviewer.train import (
+    PLANE_DROPOUT,
+    TrainConfig,
+    augment,
+    bce_loss,
+    evaluate_grids,
+    jaccard_grids,
+    load_grid_sets,
+    train,
+    warm_start,
+)
 
 
 @pytest.fixture(scope="module")
 def tiny_data(tmp_path_factory):
     out = tmp_path_factory.mktemp("data")
-    generate(out, GenerationConfig(views=8, seed=1), objects=["ycb/025_mug", "ycb/006_mustard_bottle", "random/001"],
-             workers=1, progress=False)
+    generate(
+        out,
+        GenerationConfig(views=8, seed=1),
+        objects=["ycb/025_mug", "ycb/006_mustard_bottle", "random/001"],
+        workers=1,
+        progress=False,
+    )
     return out
 
 

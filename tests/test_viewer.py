@@ -91,7 +91,8 @@ def test_complete_all_is_one_batch(app):
     me = threading.get_ident()
     batches: list[int] = []
     hook = app.completer.net.register_forward_hook(
-        lambda _net, args, _out: batches.append(len(args[0])) if threading.get_ident() == me else None)
+        lambda _net, args, _out: batches.append(len(args[0])) if threading.get_ident() == me else None
+    )
     try:
         done = app.complete_all()
     finally:

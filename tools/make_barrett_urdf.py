@@ -57,8 +57,9 @@ def _box_inertia(mass: float, size: tuple[float, float, float]) -> str:
     return f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/>'
 
 
-def _box_link(name: str, mass: float, size: tuple[float, float, float], centre: tuple[float, float, float],
-              colour: str) -> str:
+def _box_link(
+    name: str, mass: float, size: tuple[float, float, float], centre: tuple[float, float, float], colour: str
+) -> str:
     xyz = " ".join(_f(c) for c in centre)
     dims = " ".join(_f(s) for s in size)
     geom = f'<origin xyz="{xyz}" rpy="0 0 0"/><geometry><box size="{dims}"/></geometry>'
@@ -70,12 +71,21 @@ def _box_link(name: str, mass: float, size: tuple[float, float, float], centre: 
 """
 
 
-def _joint(name: str, parent: str, child: str, xyz: tuple[float, float, float], yaw: float,
-           axis: tuple[float, float, float], lower: float, upper: float, effort: float) -> str:
+def _joint(
+    name: str,
+    parent: str,
+    child: str,
+    xyz: tuple[float, float, float],
+    yaw: float,
+    axis: tuple[float, float, float],
+    lower: float,
+    upper: float,
+    effort: float,
+) -> str:
     return f"""  <joint name="{name}" type="revolute">
     <parent link="{parent}"/><child link="{child}"/>
-    <origin xyz="{' '.join(_f(c) for c in xyz)}" rpy="0 0 {_f(yaw)}"/>
-    <axis xyz="{' '.join(_f(a) for a in axis)}"/>
+    <origin xyz="{" ".join(_f(c) for c in xyz)}" rpy="0 0 {_f(yaw)}"/>
+    <axis xyz="{" ".join(_f(a) for a in axis)}"/>
     <limit lower="{_f(lower)}" upper="{_f(upper)}" effort="{_f(effort)}" velocity="1.0"/>
   </joint>
 """
@@ -89,8 +99,17 @@ def _finger(prefix: str, parent: str, xyz: tuple[float, float, float], yaw: floa
     return (
         _joint(f"{prefix}_proximal", parent, f"{prefix}_proximal", xyz, yaw, (0, 1, 0), 0.0, FINGER_MAX, 2.0)
         + _box_link(f"{prefix}_proximal", MASS["proximal"], prox_size, (0, 0, PROXIMAL / 2), "link")
-        + _joint(f"{prefix}_distal", f"{prefix}_proximal", f"{prefix}_distal", (0, 0, PROXIMAL), 0.0, (0, 1, 0),
-                 DISTAL_OFFSET, FINGER_MAX / 3 + DISTAL_OFFSET, 1.0)
+        + _joint(
+            f"{prefix}_distal",
+            f"{prefix}_proximal",
+            f"{prefix}_distal",
+            (0, 0, PROXIMAL),
+            0.0,
+            (0, 1, 0),
+            DISTAL_OFFSET,
+            FINGER_MAX / 3 + DISTAL_OFFSET,
+            1.0,
+        )
         + _box_link(f"{prefix}_distal", MASS["distal"], dist_size, (0, 0, DISTAL / 2), "tip")
     )
 
@@ -101,8 +120,10 @@ def urdf() -> str:
     r, h = PALM_RADIUS, PALM_HEIGHT
     ixx = palm_mass * (3 * r * r + h * h) / 12.0
     izz = palm_mass * r * r / 2.0
-    palm_geom = (f'<origin xyz="0 0 {_f(-h / 2)}" rpy="0 0 0"/>'
-                 f'<geometry><cylinder radius="{_f(r)}" length="{_f(h)}"/></geometry>')
+    palm_geom = (
+        f'<origin xyz="0 0 {_f(-h / 2)}" rpy="0 0 0"/>'
+        f'<geometry><cylinder radius="{_f(r)}" length="{_f(h)}"/></geometry>'
+    )
     # The base link's inertial frame is the palm frame itself (the cylinder's inertia is kept about
     # its own centre, 37.5 mm behind): pybullet reports, resets and constrains a base by its
     # inertial frame, and keeping the two equal avoids a silent offset for every caller.
@@ -125,8 +146,11 @@ def urdf() -> str:
     knuckle_size = (FINGER_WIDTH, KNUCKLE + FINGER_WIDTH, KNUCKLE_HEIGHT)
     knuckle_centre = (0.0, KNUCKLE / 2, -KNUCKLE_HEIGHT / 2)
     for prefix, x, axis_z in (("f1", SPREAD_AXIS_X, -1.0), ("f2", -SPREAD_AXIS_X, 1.0)):
-        parts.append(_joint(f"{prefix}_spread", "palm", f"{prefix}_knuckle", (x, 0, 0), 0.0, (0, 0, axis_z),
-                            0.0, SPREAD_MAX, 1.0))
+        parts.append(
+            _joint(
+                f"{prefix}_spread", "palm", f"{prefix}_knuckle", (x, 0, 0), 0.0, (0, 0, axis_z), 0.0, SPREAD_MAX, 1.0
+            )
+        )
         parts.append(_box_link(f"{prefix}_knuckle", MASS["knuckle"], knuckle_size, knuckle_centre, "palm"))
         # Knuckle frame: +y points from the spread axis to the proximal joint; the finger frame's x
         # must point back to the spread axis (-y), hence a -90 deg yaw.

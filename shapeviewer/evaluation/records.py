@@ -31,14 +31,49 @@ ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS
 # What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
 KINDS = ("truth", "points", *METHODS)
 # Per view and method, means over its grasps (the keys of a view's "grasps" entries).
-GRASP_MEANS = ("joint_error_deg", "pose_error_mm", "epsilon_planned", "volume_planned", "epsilon_executed",
-               "volume_executed", "force_closure_planned", "force_closure_executed", "start_clear", "lift_success")
+GRASP_MEANS = (
+    "joint_error_deg",
+    "pose_error_mm",
+    "epsilon_planned",
+    "volume_planned",
+    "epsilon_executed",
+    "volume_executed",
+    "force_closure_planned",
+    "force_closure_executed",
+    "start_clear",
+    "lift_success",
+)
 # The entry fields a results index keeps and shows (a subset of an entry's keys).
-GRASP_FIELDS = ("n", "joint_error_deg", "pose_error_mm", "epsilon_planned", "epsilon_executed",
-                "force_closure_planned", "lift_success", "seconds_plan")
-GRASP_ROW_FIELDS = ("object", "view", "view_set", "method", "hand", "rank", "epsilon_planned", "volume_planned",
-                    "energy_planned", "epsilon_executed", "volume_executed", "joint_error_deg", "pose_error_mm",
-                    "start_clear", "approach_contact", "lift_success", "lift_rise_mm", "lift_slip_mm")
+GRASP_FIELDS = (
+    "n",
+    "joint_error_deg",
+    "pose_error_mm",
+    "epsilon_planned",
+    "epsilon_executed",
+    "force_closure_planned",
+    "lift_success",
+    "seconds_plan",
+)
+GRASP_ROW_FIELDS = (
+    "object",
+    "view",
+    "view_set",
+    "method",
+    "hand",
+    "rank",
+    "epsilon_planned",
+    "volume_planned",
+    "energy_planned",
+    "epsilon_executed",
+    "volume_executed",
+    "joint_error_deg",
+    "pose_error_mm",
+    "start_clear",
+    "approach_contact",
+    "lift_success",
+    "lift_rise_mm",
+    "lift_slip_mm",
+)
 
 
 def view_stem(name: str, view: int) -> str:
@@ -80,9 +115,16 @@ def view_record(root, name: str, view: int, view_set: str, seed: int, rows: list
     method has none); paths are relative to ``root``.
     """
     planes = [r.pop("support_plane", None) for r in rows]
-    return {"object": name, "view": int(view), "view_set": view_set, "seed": int(seed),
-            "support_plane": next((p for p in planes if p is not None), None),
-            "files": mesh_files(root, view_stem(name, view)), "rows": rows, "grasps": []}
+    return {
+        "object": name,
+        "view": int(view),
+        "view_set": view_set,
+        "seed": int(seed),
+        "support_plane": next((p for p in planes if p is not None), None),
+        "files": mesh_files(root, view_stem(name, view)),
+        "rows": rows,
+        "grasps": [],
+    }
 
 
 class ViewFileError(ValueError):
@@ -123,8 +165,12 @@ def parse_view_file(text: str, root: str | Path) -> dict:
     except (KeyError, TypeError, ValueError):
         raise ViewFileError("no object name and view number") from None
     for r in rows:
-        if not isinstance(r, dict) or r.get("object", name) != name or int(r.get("view", view)) != view \
-                or "method" not in r:
+        if (
+            not isinstance(r, dict)
+            or r.get("object", name) != name
+            or int(r.get("view", view)) != view
+            or "method" not in r
+        ):
             raise ViewFileError("rows of different views, or without a method")
     view_set = head.get("view_set") or (rows[0].get("view_set") if rows else "")
     view_set = str(view_set or catalogue.view_split(name, view))
@@ -133,8 +179,17 @@ def parse_view_file(text: str, root: str | Path) -> dict:
         files = {k: f"meshes/{stem}__{k}.ply" for k in KINDS}
     files = {str(k): str(v) for k, v in files.items() if isinstance(v, str) and (Path(root) / v).is_file()}
     seed = doc.get("seed")
-    return {**doc, "object": name, "view": view, "view_set": view_set, "seed": None if seed is None else int(seed),
-            "support_plane": doc.get("support_plane"), "files": files, "rows": rows, "grasps": grasps}
+    return {
+        **doc,
+        "object": name,
+        "view": view,
+        "view_set": view_set,
+        "seed": None if seed is None else int(seed),
+        "support_plane": doc.get("support_plane"),
+        "files": files,
+        "rows": rows,
+        "grasps": grasps,
+    }
 
 
 def load_view(root, name: str, view: int, seed: int | None = None) -> dict | None:
@@ -184,14 +239,24 @@ def grasp_rows(base: dict, grasps, executions) -> list[dict]:
     rows = []
     for rank, (g, e) in enumerate(zip(grasps, executions)):
         lift = e.lift
-        rows.append({**base, "rank": rank, "epsilon_planned": float(g.epsilon), "volume_planned": float(g.volume),
-                     "energy_planned": float(g.energy), "epsilon_executed": float(e.epsilon),
-                     "volume_executed": float(e.volume), "joint_error_deg": float(e.joint_error),
-                     "pose_error_mm": float(e.pose_error), "start_clear": float(e.start_clear),
-                     "approach_contact": float(e.approach_contact),
-                     "lift_success": math.nan if lift is None else float(lift.success),
-                     "lift_rise_mm": math.nan if lift is None else 1000.0 * lift.rise,
-                     "lift_slip_mm": math.nan if lift is None else 1000.0 * lift.slip})
+        rows.append(
+            {
+                **base,
+                "rank": rank,
+                "epsilon_planned": float(g.epsilon),
+                "volume_planned": float(g.volume),
+                "energy_planned": float(g.energy),
+                "epsilon_executed": float(e.epsilon),
+                "volume_executed": float(e.volume),
+                "joint_error_deg": float(e.joint_error),
+                "pose_error_mm": float(e.pose_error),
+                "start_clear": float(e.start_clear),
+                "approach_contact": float(e.approach_contact),
+                "lift_success": math.nan if lift is None else float(lift.success),
+                "lift_rise_mm": math.nan if lift is None else 1000.0 * lift.rise,
+                "lift_slip_mm": math.nan if lift is None else 1000.0 * lift.slip,
+            }
+        )
     return rows
 
 
@@ -206,7 +271,12 @@ def load_grasp_rows(root, records: list[dict]) -> list[dict]:
             if g["error"] or not g["file"]:
                 continue
             gs = grasps_from_json((Path(root) / g["file"]).read_text())
-            base = {"object": rec["object"], "view": int(rec["view"]), "view_set": rec["view_set"],
-                    "method": g["method"], "hand": g["hand"]}
+            base = {
+                "object": rec["object"],
+                "view": int(rec["view"]),
+                "view_set": rec["view_set"],
+                "method": g["method"],
+                "hand": g["hand"],
+            }
             rows += grasp_rows(base, gs.grasps, gs.executions)
     return rows

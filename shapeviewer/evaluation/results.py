@@ -44,11 +44,22 @@ log = logging.getLogger(__name__)
 INDEX_NAME = "index.sqlite"
 SCHEMA_VERSION = 2
 # The metrics the browser filters and sorts by, and which way is better.
-HIGHER_IS_BETTER = {"jaccard": True, "j80": True, "hausdorff_mean_mm": False, "hausdorff_max_mm": False,
-                    "hausdorff_rms_mm": False, "geodesic": False}
-METRIC_TITLES = {"jaccard": "Jaccard", "j80": "J80 (sampled solids)", "hausdorff_mean_mm": "Hausdorff mean (mm)",
-                 "hausdorff_max_mm": "Hausdorff max (mm)", "hausdorff_rms_mm": "Hausdorff RMS (mm)",
-                 "geodesic": "Geodesic divergence"}
+HIGHER_IS_BETTER = {
+    "jaccard": True,
+    "j80": True,
+    "hausdorff_mean_mm": False,
+    "hausdorff_max_mm": False,
+    "hausdorff_rms_mm": False,
+    "geodesic": False,
+}
+METRIC_TITLES = {
+    "jaccard": "Jaccard",
+    "j80": "J80 (sampled solids)",
+    "hausdorff_mean_mm": "Hausdorff mean (mm)",
+    "hausdorff_max_mm": "Hausdorff max (mm)",
+    "hausdorff_rms_mm": "Hausdorff RMS (mm)",
+    "geodesic": "Geodesic divergence",
+}
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 CREATE TABLE IF NOT EXISTS files (path TEXT PRIMARY KEY, mtime_ns INTEGER, size INTEGER, status TEXT,
@@ -294,8 +305,14 @@ class ResultsStore:
             finally:
                 db.close()
             if report.changed or report.skipped:
-                log.info("results %s: %d added, %d updated, %d removed, %d skipped", self.root, report.added,
-                         report.updated, report.removed, len(report.skipped))
+                log.info(
+                    "results %s: %d added, %d updated, %d removed, %d skipped",
+                    self.root,
+                    report.added,
+                    report.updated,
+                    report.removed,
+                    len(report.skipped),
+                )
             return report
 
     def _sync_catalogue(self, db: sqlite3.Connection) -> None:
@@ -311,16 +328,19 @@ class ResultsStore:
             return
         db.execute("BEGIN IMMEDIATE")
         try:
-            db.executemany("INSERT OR REPLACE INTO objects VALUES (?, ?, ?, ?, ?, ?, 1)",
-                           [(e.name, e.split, e.source, *map(float, e.extents)) for e in entries])
+            db.executemany(
+                "INSERT OR REPLACE INTO objects VALUES (?, ?, ?, ?, ?, ?, 1)",
+                [(e.name, e.split, e.source, *map(float, e.extents)) for e in entries],
+            )
             db.execute("INSERT OR REPLACE INTO meta VALUES ('catalogue', ?)", (key,))
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
             raise
 
-    def _ingest(self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old,
-                report: SyncReport) -> None:
+    def _ingest(
+        self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old, report: SyncReport
+    ) -> None:
         try:
             parsed = parse_view_file(path.read_text(), self.root)
         except (OSError, UnicodeDecodeError, ViewFileError) as e:
@@ -330,9 +350,12 @@ class ResultsStore:
             report.skipped.append((rel, why))
             # Remember the bad version (so it is not re-read until it changes); rows of an earlier
             # good version stay: a view being rewritten keeps showing its last complete results.
-            db.execute("INSERT INTO files (path, mtime_ns, size, status, message) VALUES (?, ?, ?, 'bad', ?) "
-                       "ON CONFLICT(path) DO UPDATE SET mtime_ns=excluded.mtime_ns, size=excluded.size, "
-                       "status='bad', message=excluded.message", (rel, st.st_mtime_ns, st.st_size, why))
+            db.execute(
+                "INSERT INTO files (path, mtime_ns, size, status, message) VALUES (?, ?, ?, 'bad', ?) "
+                "ON CONFLICT(path) DO UPDATE SET mtime_ns=excluded.mtime_ns, size=excluded.size, "
+                "status='bad', message=excluded.message",
+                (rel, st.st_mtime_ns, st.st_size, why),
+            )
             return
         name, view, files = parsed["object"], parsed["view"], parsed["files"]
         db.execute("BEGIN IMMEDIATE")
@@ -342,15 +365,25 @@ class ResultsStore:
             if had_rows and (prev[0], prev[1]) != (name, view):
                 self._delete_view(db, prev[0], prev[1])
             self._delete_view(db, name, view)
-            db.execute("INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
-                       (name, catalogue.model_split(name), name.partition("/")[0] if "/" in name else "unknown"))
-            db.execute("INSERT INTO views VALUES (?, ?, ?, ?, ?, ?, ?)",
-                       (name, view, parsed["view_set"], parsed["seed"], rel, files.get("truth"), files.get("points")))
+            db.execute(
+                "INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
+                (name, catalogue.model_split(name), name.partition("/")[0] if "/" in name else "unknown"),
+            )
+            db.execute(
+                "INSERT INTO views VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (name, view, parsed["view_set"], parsed["seed"], rel, files.get("truth"), files.get("points")),
+            )
             completions = {}
             for r in parsed["rows"]:
                 m = str(r["method"])
-                completions[m] = (name, view, m, *[_db(_as_float(r.get(k))) for k in (*METRICS, "seconds")],
-                                  str(r.get("error") or ""), files.get(m))
+                completions[m] = (
+                    name,
+                    view,
+                    m,
+                    *[_db(_as_float(r.get(k))) for k in (*METRICS, "seconds")],
+                    str(r.get("error") or ""),
+                    files.get(m),
+                )
             slots = ", ".join("?" * (6 + len(METRICS)))
             db.executemany(f"INSERT INTO completions VALUES ({slots})", completions.values())
             grasps = {}
@@ -359,12 +392,21 @@ class ResultsStore:
                 gfile = g.get("file")
                 gfile = gfile if isinstance(gfile, str) and (self.root / gfile).is_file() else None
                 n = g.get("n")
-                grasps[(method, hand)] = (name, view, method, hand, gfile, int(n) if isinstance(n, (int, float)) else 0,
-                                          *[_db(_as_float(g.get(k))) for k in GRASP_FIELDS[1:]],
-                                          str(g.get("error") or ""))
+                grasps[(method, hand)] = (
+                    name,
+                    view,
+                    method,
+                    hand,
+                    gfile,
+                    int(n) if isinstance(n, (int, float)) else 0,
+                    *[_db(_as_float(g.get(k))) for k in GRASP_FIELDS[1:]],
+                    str(g.get("error") or ""),
+                )
             db.executemany("INSERT INTO grasps VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", grasps.values())
-            db.execute("INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
-                       (rel, st.st_mtime_ns, st.st_size, name, view))
+            db.execute(
+                "INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
+                (rel, st.st_mtime_ns, st.st_size, name, view),
+            )
             self._bump(db)
             db.execute("COMMIT")
         except BaseException:
@@ -377,8 +419,10 @@ class ResultsStore:
 
     @staticmethod
     def _bump(db: sqlite3.Connection) -> None:
-        db.execute("INSERT INTO meta VALUES ('generation', '1') ON CONFLICT(key) DO UPDATE SET "
-                   "value = CAST(value AS INTEGER) + 1")
+        db.execute(
+            "INSERT INTO meta VALUES ('generation', '1') ON CONFLICT(key) DO UPDATE SET "
+            "value = CAST(value AS INTEGER) + 1"
+        )
 
     def generation(self) -> int:
         """A number that changes whenever any store on this folder (any thread or process) changed the
@@ -409,19 +453,26 @@ class ResultsStore:
 
     def counts(self) -> dict[str, int]:
         """``{"objects": with results, "views", "completions", "grasps", "skipped": unreadable files}``."""
-        (objects, views), = self._read("SELECT COUNT(DISTINCT object), COUNT(*) FROM views")
-        (completions,), = self._read("SELECT COUNT(*) FROM completions")
-        (grasps,), = self._read("SELECT COUNT(*) FROM grasps")
-        (skipped,), = self._read("SELECT COUNT(*) FROM files WHERE status='bad'")
+        ((objects, views),) = self._read("SELECT COUNT(DISTINCT object), COUNT(*) FROM views")
+        ((completions,),) = self._read("SELECT COUNT(*) FROM completions")
+        ((grasps,),) = self._read("SELECT COUNT(*) FROM grasps")
+        ((skipped,),) = self._read("SELECT COUNT(*) FROM files WHERE status='bad'")
         return {"objects": objects, "views": views, "completions": completions, "grasps": grasps, "skipped": skipped}
 
     def skipped_files(self) -> list[tuple[str, str]]:
         """(path, why) of view files that could not be read at their current version."""
         return [(p, m) for p, m in self._read("SELECT path, message FROM files WHERE status='bad' ORDER BY path")]
 
-    def objects(self, search: str = "", split: str | None = None, with_results: bool = True,
-                method: str = "Ours-fast", metric: str = "jaccard", order: str = "name",
-                metric_range: tuple[float, float] | None = None) -> list[ObjectSummary]:
+    def objects(
+        self,
+        search: str = "",
+        split: str | None = None,
+        with_results: bool = True,
+        method: str = "Ours-fast",
+        metric: str = "jaccard",
+        order: str = "name",
+        metric_range: tuple[float, float] | None = None,
+    ) -> list[ObjectSummary]:
         """The object index, filtered and ordered.
 
         Args:
@@ -439,22 +490,31 @@ class ResultsStore:
         failed: dict[str, dict[str, int]] = {}
         cols = ", ".join(f"AVG(CASE WHEN error='' THEN {k} END)" for k in (*METRICS, "seconds"))
         for name, m, n_failed, *vals in self._read(
-                f"SELECT object, method, SUM(error != ''), {cols} FROM completions GROUP BY object, method"):
+            f"SELECT object, method, SUM(error != ''), {cols} FROM completions GROUP BY object, method"
+        ):
             means.setdefault(name, {})[m] = dict(zip((*METRICS, "seconds"), map(_undb, vals)))
             failed.setdefault(name, {})[m] = int(n_failed or 0)
         n_views = dict(self._read("SELECT object, COUNT(*) FROM views GROUP BY object"))
         needle = search.strip().lower()
         out = []
         for name, sp, source, ex, ey, ez in self._read(
-                "SELECT name, split, source, extent_x, extent_y, extent_z FROM objects ORDER BY name"):
+            "SELECT name, split, source, extent_x, extent_y, extent_z FROM objects ORDER BY name"
+        ):
             if needle and needle not in name.lower():
                 continue
             if split and sp != split:
                 continue
             if with_results and not n_views.get(name):
                 continue
-            o = ObjectSummary(name, sp, source, (_undb(ex), _undb(ey), _undb(ez)), int(n_views.get(name, 0)),
-                              means.get(name, {}), failed.get(name, {}))
+            o = ObjectSummary(
+                name,
+                sp,
+                source,
+                (_undb(ex), _undb(ey), _undb(ez)),
+                int(n_views.get(name, 0)),
+                means.get(name, {}),
+                failed.get(name, {}),
+            )
             if metric_range is not None:
                 v = o.mean(method, metric)
                 if math.isnan(v) or not metric_range[0] <= v <= metric_range[1]:
@@ -462,9 +522,13 @@ class ResultsStore:
             out.append(o)
         if order in ("worst", "best"):
             sign = 1.0 if HIGHER_IS_BETTER[metric] == (order == "worst") else -1.0
-            out.sort(key=lambda o: (math.isnan(o.mean(method, metric)),
-                                    0.0 if math.isnan(o.mean(method, metric)) else sign * o.mean(method, metric),
-                                    o.name))
+            out.sort(
+                key=lambda o: (
+                    math.isnan(o.mean(method, metric)),
+                    0.0 if math.isnan(o.mean(method, metric)) else sign * o.mean(method, metric),
+                    o.name,
+                )
+            )
         elif order == "views":
             out.sort(key=lambda o: (-o.views, o.name))
         elif order != "name":
@@ -479,36 +543,42 @@ class ResultsStore:
 
     def views(self, name: str) -> list[ViewInfo]:
         """The views of an object that have results, by view number."""
-        return [ViewInfo(*r) for r in self._read(
-            f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? ORDER BY view", (name,))]
+        return [
+            ViewInfo(*r) for r in self._read(f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? ORDER BY view", (name,))
+        ]
 
     def view(self, name: str, view: int) -> ViewInfo:
-        rows = self._read(f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? AND view=?",
-                          (name, int(view)))
+        rows = self._read(f"SELECT {_VIEW_COLUMNS} FROM views WHERE object=? AND view=?", (name, int(view)))
         if not rows:
             raise KeyError(f"no results for {name!r} view {view} in {self.root}")
         return ViewInfo(*rows[0])
 
     def completions(self, name: str, view: int) -> list[CompletionResult]:
         """Each method's completion of a view, in :data:`evaluate.METHODS` order (others after)."""
-        rows = self._read(f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh FROM completions "
-                          "WHERE object=? AND view=?", (name, int(view)))
+        rows = self._read(
+            f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh FROM completions WHERE object=? AND view=?",
+            (name, int(view)),
+        )
         out = [CompletionResult(m, *map(_undb, vals), err or "", mesh) for m, *vals, err, mesh in rows]
         rank = {m: i for i, m in enumerate(METHODS)}
         return sorted(out, key=lambda c: (rank.get(c.method, len(rank)), c.method))
 
     def grasps(self, name: str, view: int) -> list[GraspSummary]:
         """Grasp summaries of a view (one per method and hand), in :data:`evaluate.METHODS` order."""
-        rows = self._read(f"SELECT method, hand, file, {', '.join(GRASP_FIELDS)}, error FROM grasps "
-                          "WHERE object=? AND view=?", (name, int(view)))
+        rows = self._read(
+            f"SELECT method, hand, file, {', '.join(GRASP_FIELDS)}, error FROM grasps WHERE object=? AND view=?",
+            (name, int(view)),
+        )
         out = [GraspSummary(m, h, f, int(n or 0), *map(_undb, vals), err or "") for m, h, f, n, *vals, err in rows]
         rank = {m: i for i, m in enumerate(METHODS)}
         return sorted(out, key=lambda g: (rank.get(g.method, len(rank)), g.method, g.hand))
 
     def rows(self, names: Iterable[str] | None = None) -> list[dict]:
         """Completion rows in the evaluation's format (:data:`evaluate.ROW_FIELDS`, NaN metrics on failure)."""
-        sql = (f"SELECT c.object, c.view, v.view_set, c.method, {', '.join('c.' + k for k in METRICS)}, c.seconds, "
-               "c.error FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view")
+        sql = (
+            f"SELECT c.object, c.view, v.view_set, c.method, {', '.join('c.' + k for k in METRICS)}, c.seconds, "
+            "c.error FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view"
+        )
         wanted = None if names is None else set(names)
         out = []
         for r in self._read(sql + " ORDER BY c.object, c.view"):
@@ -540,10 +610,14 @@ class ResultsStore:
         means = GRASP_FIELDS[1:]
         cols = ", ".join(f"AVG(CASE WHEN g.error='' THEN g.{k} END)" for k in means)
         for view_set, method, n, failed, *vals in self._read(
-                f"SELECT v.view_set, g.method, SUM(g.error=''), SUM(g.error!=''), {cols} FROM grasps g "
-                "JOIN views v ON v.object=g.object AND v.view=g.view GROUP BY v.view_set, g.method"):
-            out.setdefault(view_set, {})[method] = {"n": int(n or 0), "failed": int(failed or 0),
-                                                    **dict(zip(means, map(_undb, vals)))}
+            f"SELECT v.view_set, g.method, SUM(g.error=''), SUM(g.error!=''), {cols} FROM grasps g "
+            "JOIN views v ON v.object=g.object AND v.view=g.view GROUP BY v.view_set, g.method"
+        ):
+            out.setdefault(view_set, {})[method] = {
+                "n": int(n or 0),
+                "failed": int(failed or 0),
+                **dict(zip(means, map(_undb, vals))),
+            }
         return out
 
     def grasp_tables_summary(self) -> dict:
@@ -551,11 +625,20 @@ class ResultsStore:
         ``shapeviewer evaluate`` computes them: pooled over the grasps, read from the grasp files."""
         records: dict[tuple[str, int], dict] = {}
         for name, view, view_set, method, hand, gfile, n, seconds_plan, error in self._read(
-                "SELECT g.object, g.view, v.view_set, g.method, g.hand, g.file, g.n, g.seconds_plan, g.error "
-                "FROM grasps g JOIN views v ON v.object=g.object AND v.view=g.view ORDER BY g.object, g.view"):
+            "SELECT g.object, g.view, v.view_set, g.method, g.hand, g.file, g.n, g.seconds_plan, g.error "
+            "FROM grasps g JOIN views v ON v.object=g.object AND v.view=g.view ORDER BY g.object, g.view"
+        ):
             rec = records.setdefault((name, view), {"object": name, "view": view, "view_set": view_set, "grasps": []})
-            rec["grasps"].append({"method": method, "hand": hand, "file": gfile or "", "n": int(n or 0),
-                                  "seconds_plan": _undb(seconds_plan), "error": error or ""})
+            rec["grasps"].append(
+                {
+                    "method": method,
+                    "hand": hand,
+                    "file": gfile or "",
+                    "n": int(n or 0),
+                    "seconds_plan": _undb(seconds_plan),
+                    "error": error or "",
+                }
+            )
         return tables.summarize_grasps(list(records.values()), load_grasp_rows(self.root, list(records.values())))
 
     def tables_markdown(self) -> str:
@@ -624,9 +707,13 @@ class ResultsStore:
         truth_obj.apply_transform(T_obj_cam)
         T_world_obj = np.eye(4)
         T_world_obj[2, 3] = -float(truth_obj.vertices[:, 2].min())
-        return Capture(points_cam=points, intrinsics=Intrinsics.kinect(), T_world_cam=T_world_obj @ T_obj_cam,
-                       source=str(self.mesh_file(name, view, "points")),
-                       objects=[SceneObject(name, truth_obj, T_world_obj)])
+        return Capture(
+            points_cam=points,
+            intrinsics=Intrinsics.kinect(),
+            T_world_cam=T_world_obj @ T_obj_cam,
+            source=str(self.mesh_file(name, view, "points")),
+            objects=[SceneObject(name, truth_obj, T_world_obj)],
+        )
 
     def grasp_set(self, name: str, view: int, method: str, hand: str | None = None):
         """The grasps planned on ``method``'s completion (:class:`grasp.export.GraspSet`), or None."""
@@ -669,4 +756,3 @@ def read_points(path: Path) -> np.ndarray:
 
     with open(path, "rb") as f:
         return np.asarray(load_ply(f)["vertices"], dtype=np.float64).reshape(-1, 3)
-

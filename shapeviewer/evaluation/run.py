@@ -85,8 +85,9 @@ if TYPE_CHECKING:  # imported lazily at run time: pybullet is heavy
 log = logging.getLogger(__name__)
 
 
-def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: int = 0,
-                  view_set: str | None = None) -> list[dict]:
+def evaluate_view(
+    name: str, view: int, completer, out_dir: str | Path, seed: int = 0, view_set: str | None = None
+) -> list[dict]:
     """Every method on one view: one completion row per method (a failing method records its
     error), each carrying the view's ``support_plane`` for :func:`records.view_record`. Meshes go
     to ``out_dir/meshes`` (camera optical frame, metres)."""
@@ -103,8 +104,10 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
     try:
         observed = render_view(name, view, view_set, seed)
     except Exception as e:  # unrenderable view: every method records it
-        return [{**base, "method": m, **{k: math.nan for k in METRICS}, "seconds": math.nan,
-                 "error": f"render: {e}"} for m in METHODS]
+        return [
+            {**base, "method": m, **{k: math.nan for k in METRICS}, "seconds": math.nan, "error": f"render: {e}"}
+            for m in METHODS
+        ]
     points, truth, plane = observed.points_cam, observed.truth_cam, observed.support_plane
     base["sensor"] = observed.sensor
     base["support_plane"] = None if plane is None else [float(v) for v in plane]
@@ -132,19 +135,25 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
     def ours_detailed():
         c = cnn_output()
         t0 = time.perf_counter()
-        return (detailed_mesh(c["probs"], c["frame"], points, support_plane=plane),
-                c["seconds"] + time.perf_counter() - t0)
+        return (
+            detailed_mesh(c["probs"], c["frame"], points, support_plane=plane),
+            c["seconds"] + time.perf_counter() - t0,
+        )
 
     def timed(fn):
         def run():
             t0 = time.perf_counter()
             return fn(), time.perf_counter() - t0
+
         return run
 
-    methods = {"Partial": timed(lambda: partial_mesh(points)),
-               "Mirror": timed(lambda: mirror_mesh(points, plane)),
-               "Hull": timed(lambda: hull_mesh(points)),
-               "Ours-fast": ours_fast, "Ours-detailed": ours_detailed}
+    methods = {
+        "Partial": timed(lambda: partial_mesh(points)),
+        "Mirror": timed(lambda: mirror_mesh(points, plane)),
+        "Hull": timed(lambda: hull_mesh(points)),
+        "Ours-fast": ours_fast,
+        "Ours-detailed": ours_detailed,
+    }
     rows = []
     for method, run in methods.items():
         row = {**base, "method": method, **{k: math.nan for k in METRICS}, "seconds": math.nan, "error": ""}
@@ -165,12 +174,11 @@ def evaluate_view(name: str, view: int, completer, out_dir: str | Path, seed: in
 
 # The evaluation world frame (see the module docstring): a level camera's body frame, camera at
 # the origin. Rows map camera axes: world x = camera z (forward), y = -camera x, z = -camera y (up).
-T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0],
-                        [-1.0, 0.0, 0.0, 0.0],
-                        [0.0, -1.0, 0.0, 0.0],
-                        [0.0, 0.0, 0.0, 1.0]])
-GRASP_FRAME = ("evaluation world: level camera body frame, camera at the origin, x forward (camera z), "
-               "y left (-camera x), z up (-camera y); no table")
+T_WORLD_CAM = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+GRASP_FRAME = (
+    "evaluation world: level camera body frame, camera at the origin, x forward (camera z), "
+    "y left (-camera x), z up (-camera y); no table"
+)
 TABLE_GRASP_FRAME = "table frame of the segmentation's support plane (z up, table at z = 0)"
 GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
 
@@ -227,10 +235,14 @@ def grasp_means(rows: list[dict]) -> dict:
     """Means over one view's grasp rows (``GRASP_MEANS``; NaN without grasps) and
     ``lift_success_best``: whether the planner's best grasp (rank 0, the one a robot would
     execute) lifted the object; 0 when no grasp was found (a robot would have had nothing to try)."""
-    derived = {"force_closure_planned": [float(r["epsilon_planned"] > 0) for r in rows],
-               "force_closure_executed": [float(r["epsilon_executed"] > 0) for r in rows]}
-    means = {k: (float(np.mean(derived[k] if k in derived else [r[k] for r in rows])) if rows else math.nan)
-             for k in GRASP_MEANS}
+    derived = {
+        "force_closure_planned": [float(r["epsilon_planned"] > 0) for r in rows],
+        "force_closure_executed": [float(r["epsilon_executed"] > 0) for r in rows],
+    }
+    means = {
+        k: (float(np.mean(derived[k] if k in derived else [r[k] for r in rows])) if rows else math.nan)
+        for k in GRASP_MEANS
+    }
     means["lift_success_best"] = float(rows[0]["lift_success"]) if rows else 0.0
     return means
 
@@ -251,10 +263,20 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
     out = Path(out_dir)
     name, view = record["object"], int(record["view"])
     seed = plan_seed(record["seed"], name, view)
-    entry = {"method": method, "hand": options.hand, "file": "", "n": 0,
-             **grasp_means([]), "lift_success_best": math.nan, "n_requested": int(options.n_grasps),
-             "plan_seed": seed, "seconds_plan": math.nan, "seconds_execute": math.nan, "frame": "evaluation_world",
-             "error": ""}
+    entry = {
+        "method": method,
+        "hand": options.hand,
+        "file": "",
+        "n": 0,
+        **grasp_means([]),
+        "lift_success_best": math.nan,
+        "n_requested": int(options.n_grasps),
+        "plan_seed": seed,
+        "seconds_plan": math.nan,
+        "seconds_execute": math.nan,
+        "frame": "evaluation_world",
+        "error": "",
+    }
     missing = [k for k in ("truth", method) if k not in record["files"]]
     if missing:
         entry["error"] = f"no {' or '.join(missing)} mesh"
@@ -266,8 +288,15 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         if table:  # the estimated table may sit a few mm high: the true object must not start inside it
             truth.apply_translation([0.0, 0.0, max(0.0, -float(truth.bounds[0, 2]))])
         t0 = time.perf_counter()
-        result = plan(completion, hand=options.hand, n_grasps=options.n_grasps, seed=seed, table=table,
-                      budget_seconds=options.budget_seconds, settings=options.settings or PlanSettings())
+        result = plan(
+            completion,
+            hand=options.hand,
+            n_grasps=options.n_grasps,
+            seed=seed,
+            table=table,
+            budget_seconds=options.budget_seconds,
+            settings=options.settings or PlanSettings(),
+        )
         t1 = time.perf_counter()
         executions = execute_grasps(result.grasps, truth, table=table, lift=True)
         t2 = time.perf_counter()
@@ -276,16 +305,33 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         log.info("%s view %d %s grasps failed:\n%s", name, view, method, traceback.format_exc())
         return entry
     rel = grasp_file(view_stem(name, view), method, options.hand)
-    meta = {"object": name, "view": view, "view_set": record["view_set"], "method": method,
-            "frame": TABLE_GRASP_FRAME if table else GRASP_FRAME,
-            "T_world_cam": T_world_cam.tolist(), "planned_on": record["files"][method],
-            "executed_on": record["files"]["truth"], "table": table, "plan_seed": seed,
-            "plan_stats": {"evaluations": result.stats.evaluations, "simulated": result.stats.simulated,
-                           "seconds": result.stats.seconds, "cancelled": result.stats.cancelled}}
+    meta = {
+        "object": name,
+        "view": view,
+        "view_set": record["view_set"],
+        "method": method,
+        "frame": TABLE_GRASP_FRAME if table else GRASP_FRAME,
+        "T_world_cam": T_world_cam.tolist(),
+        "planned_on": record["files"][method],
+        "executed_on": record["files"]["truth"],
+        "table": table,
+        "plan_seed": seed,
+        "plan_stats": {
+            "evaluations": result.stats.evaluations,
+            "simulated": result.stats.simulated,
+            "seconds": result.stats.seconds,
+            "cancelled": result.stats.cancelled,
+        },
+    }
     atomic_write(out / rel, grasps_to_json(result.grasps, executions, meta))
     base = {"object": name, "view": view, "view_set": record["view_set"], "method": method, "hand": options.hand}
-    entry.update(file=rel, n=len(result.grasps), **grasp_means(grasp_rows(base, result.grasps, executions)),
-                 seconds_plan=t1 - t0, seconds_execute=t2 - t1)
+    entry.update(
+        file=rel,
+        n=len(result.grasps),
+        **grasp_means(grasp_rows(base, result.grasps, executions)),
+        seconds_plan=t1 - t0,
+        seconds_execute=t2 - t1,
+    )
     return entry
 
 
@@ -360,8 +406,17 @@ def _run_ray_task(task, weights) -> str:
     return _run_one(task)
 
 
-def run_views(out_dir, views: list[tuple[str, int, str]], *, seed: int = 0, weights=None, workers: int | None = None,
-              backend: str = "process", grasps: GraspOptions | None = None, progress: bool = True) -> int:
+def run_views(
+    out_dir,
+    views: list[tuple[str, int, str]],
+    *,
+    seed: int = 0,
+    weights=None,
+    workers: int | None = None,
+    backend: str = "process",
+    grasps: GraspOptions | None = None,
+    progress: bool = True,
+) -> int:
     """Do the pending work of ``views`` (``(object, view, view_set)``): completions of views without
     a record, then the grasp methods of ``grasps`` not yet done. Returns the number of views that
     had work.
@@ -436,9 +491,18 @@ def write_tables(out_dir, views: list[tuple[str, int, str]], seed: int, n_per_se
     return {"rows": rows, "summary": summary, "grasp_rows": g_rows, "grasp_summary": g_summary, "tables_md": md}
 
 
-def evaluate(out_dir: str | Path, *, n_per_set: int = 50, seed: int = 0, weights=None, workers: int | None = None,
-             backend: str = "process", progress: bool = True, grasps: GraspOptions | bool | None = None,
-             views: str = "paper") -> dict:
+def evaluate(
+    out_dir: str | Path,
+    *,
+    n_per_set: int = 50,
+    seed: int = 0,
+    weights=None,
+    workers: int | None = None,
+    backend: str = "process",
+    progress: bool = True,
+    grasps: GraspOptions | bool | None = None,
+    views: str = "paper",
+) -> dict:
     """Run the test set (resumable), then write ``rows.csv``, ``tables.md`` and ``tables.csv``
     (and with ``grasps``, ``grasp_rows.csv`` and Tables IV/V).
 
@@ -454,10 +518,15 @@ def evaluate(out_dir: str | Path, *, n_per_set: int = 50, seed: int = 0, weights
     t0 = time.perf_counter()
     sample = sample_views(n_per_set, seed, views)
     upgrade_old_views(out, sample, seed)
-    computed = run_views(out, sample, seed=seed, weights=weights, workers=workers, backend=backend, grasps=options,
-                         progress=progress)
-    return {"computed": computed, "skipped": len(sample) - computed, **write_tables(out, sample, seed, n_per_set),
-            "seconds": time.perf_counter() - t0}
+    computed = run_views(
+        out, sample, seed=seed, weights=weights, workers=workers, backend=backend, grasps=options, progress=progress
+    )
+    return {
+        "computed": computed,
+        "skipped": len(sample) - computed,
+        **write_tables(out, sample, seed, n_per_set),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 # ----------------------------------------------------------------------------------------------
@@ -466,12 +535,17 @@ def evaluate(out_dir: str | Path, *, n_per_set: int = 50, seed: int = 0, weights
 # Household YCB objects of both model splits and a pybullet toy, views from all three evaluation
 # sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
 SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
-    ("ycb/021_bleach_cleanser", 0), ("ycb/021_bleach_cleanser", 120),
-    ("ycb/006_mustard_bottle", 100), ("ycb/006_mustard_bottle", 420),
-    ("ycb/025_mug", 180), ("ycb/025_mug", 0),
+    ("ycb/021_bleach_cleanser", 0),
+    ("ycb/021_bleach_cleanser", 120),
+    ("ycb/006_mustard_bottle", 100),
+    ("ycb/006_mustard_bottle", 420),
+    ("ycb/025_mug", 180),
+    ("ycb/025_mug", 0),
     ("ycb/035_power_drill", 300),
     ("pybullet/duck", 0),
-    ("ycb/025_mug", 10_003), ("household/spray_bottle_004", 10_001), ("household/bowl_003", 10_002),
+    ("ycb/025_mug", 10_003),
+    ("household/spray_bottle_004", 10_001),
+    ("household/bowl_003", 10_002),
 )
 SAMPLE_VERSION = 2
 SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
@@ -501,9 +575,16 @@ def sample_store_complete(root: str | Path) -> bool:
     return (Path(root) / SAMPLE_DONE).is_file()
 
 
-def build_sample_store(root: str | Path, *, views: Iterable[tuple[str, int]] = SAMPLE_VIEWS, weights=None,
-                       seed: int = 0, progress: Callable[[int, int, str], None] | None = None,
-                       completer=None, grasps: GraspOptions | bool | None = True):
+def build_sample_store(
+    root: str | Path,
+    *,
+    views: Iterable[tuple[str, int]] = SAMPLE_VIEWS,
+    weights=None,
+    seed: int = 0,
+    progress: Callable[[int, int, str], None] | None = None,
+    completer=None,
+    grasps: GraspOptions | bool | None = True,
+):
     """Evaluate ``views`` as :func:`evaluate` does into a results store (returned, a
     :class:`~.results.ResultsStore`): first every view's completions, then (``grasps``: True for
     :func:`sample_grasp_options`, a :class:`GraspOptions`, or None) grasps planned on each and
@@ -551,4 +632,3 @@ def build_sample_store(root: str | Path, *, views: Iterable[tuple[str, int]] = S
     atomic_write(root / SAMPLE_DONE, json.dumps({"views": views, "grasps": options is not None}))
     step("done")
     return store
-

@@ -30,12 +30,21 @@ from .viewsets import SET_TITLES, VIEW_SETS
 
 # SPEC §7: the paper's figures, {metric: {view_set: (Partial, Mirror, Ours)}}.
 PAPER = {
-    "jaccard": {"training_view": (0.118, 0.233, 0.777), "holdout_view": (0.131, 0.239, 0.749),
-                "holdout_model": (0.093, 0.192, 0.650)},
-    "hausdorff_mean_mm": {"training_view": (11.4, 7.5, 3.6), "holdout_view": (12.3, 8.2, 4.0),
-                          "holdout_model": (13.6, 10.7, 5.9)},
-    "geodesic": {"training_view": (0.377, 0.291, 0.087), "holdout_view": (0.494, 0.337, 0.093),
-                 "holdout_model": (0.341, 0.280, 0.141)},
+    "jaccard": {
+        "training_view": (0.118, 0.233, 0.777),
+        "holdout_view": (0.131, 0.239, 0.749),
+        "holdout_model": (0.093, 0.192, 0.650),
+    },
+    "hausdorff_mean_mm": {
+        "training_view": (11.4, 7.5, 3.6),
+        "holdout_view": (12.3, 8.2, 4.0),
+        "holdout_model": (13.6, 10.7, 5.9),
+    },
+    "geodesic": {
+        "training_view": (0.377, 0.291, 0.087),
+        "holdout_view": (0.494, 0.337, 0.093),
+        "holdout_model": (0.341, 0.280, 0.141),
+    },
 }
 # SPEC §8: the paper's Table IV, {quantity: {view_set: (Partial, Mirror, Ours)}}. SPEC gives the
 # training-view and holdout-model rows only; the holdout-view row is left blank rather than guessed.
@@ -49,14 +58,21 @@ PAPER_LIFT = (0.714, 0.733, 0.933)
 # its full pipeline (CNN + Algorithm 1), i.e. our Ours-detailed; methods not listed have none.
 PAPER_COLUMN = {"Partial": 0, "Mirror": 1, "Ours-detailed": 2}
 PAPER_METHODS = tuple(PAPER_COLUMN)  # ours beside the paper's columns, in the paper's order
-TABLES = (("I", "jaccard", "Jaccard similarity (higher is better)"),
-          ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
-          ("III", "geodesic", "Geodesic divergence (lower is better)"),
-          ("J80", "j80", "Jaccard of the solids sampled at 80^3 points, J80 (higher is better)"))
+TABLES = (
+    ("I", "jaccard", "Jaccard similarity (higher is better)"),
+    ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
+    ("III", "geodesic", "Geodesic divergence (lower is better)"),
+    ("J80", "j80", "Jaccard of the solids sampled at 80^3 points, J80 (higher is better)"),
+)
 # The panel's short labels (a narrow side panel).
 SHORT_METHOD = {"Partial": "Part.", "Mirror": "Mirr.", "Hull": "Hull", "Ours-fast": "Fast", "Ours-detailed": "Det."}
-SHORT_SET = {"training_view": "train", "holdout_view": "h. view", "holdout_model": "h. model",
-             "tabletop_train_object": "table", "tabletop_holdout_model": "table h. model"}
+SHORT_SET = {
+    "training_view": "train",
+    "holdout_view": "h. view",
+    "holdout_model": "h. model",
+    "tabletop_train_object": "table",
+    "tabletop_holdout_model": "table h. model",
+}
 
 
 def _paper_cell(row, method: str) -> float:
@@ -154,26 +170,39 @@ def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
         for s in (*VIEW_SETS, "all"):
             out[hand][s] = {}
             for m in METHODS:
-                entries = [(rec, g) for rec in records if s in ("all", rec["view_set"]) for g in rec["grasps"]
-                           if g["hand"] == hand and g["method"] == m]
+                entries = [
+                    (rec, g)
+                    for rec in records
+                    if s in ("all", rec["view_set"])
+                    for g in rec["grasps"]
+                    if g["hand"] == hand and g["method"] == m
+                ]
                 if not entries:
                     continue
                 ok = [(rec, g) for rec, g in entries if not g["error"]]
                 sel = [r for r in rows if r["hand"] == hand and r["method"] == m and s in ("all", r["view_set"])]
-                cell = {k: nanmean(r[k] for r in sel) if k not in ("force_closure_planned", "force_closure_executed")
-                        else nanmean(float(r[k.replace("force_closure", "epsilon")] > 0) for r in sel)
-                        for k in GRASP_MEANS}
+                cell = {
+                    k: nanmean(r[k] for r in sel)
+                    if k not in ("force_closure_planned", "force_closure_executed")
+                    else nanmean(float(r[k.replace("force_closure", "epsilon")] > 0) for r in sel)
+                    for k in GRASP_MEANS
+                }
                 # Medians too: a few grasps whose fingers meet the true object far ahead of the
                 # completion stop 50-150 mm early and dominate the means.
                 for k in ("joint_error_deg", "pose_error_mm"):
                     vals = [r[k] for r in sel if not math.isnan(r[k])]
                     cell[f"{k}_median"] = float(np.median(vals)) if vals else math.nan
-                cell.update(grasps=len(sel), views=len(ok), failed=len(entries) - len(ok),
-                            no_grasp=sum(1 for _, g in ok if g["n"] == 0),
-                            # A view without grasps counts as a failed lift: a robot had nothing to try.
-                            lift_success_best=nanmean(best.get((rec["object"], int(rec["view"]), m, hand), 0.0)
-                                                      for rec, _ in ok),
-                            seconds_plan=nanmean(g["seconds_plan"] for _, g in ok))
+                cell.update(
+                    grasps=len(sel),
+                    views=len(ok),
+                    failed=len(entries) - len(ok),
+                    no_grasp=sum(1 for _, g in ok if g["n"] == 0),
+                    # A view without grasps counts as a failed lift: a robot had nothing to try.
+                    lift_success_best=nanmean(
+                        best.get((rec["object"], int(rec["view"]), m, hand), 0.0) for rec, _ in ok
+                    ),
+                    seconds_plan=nanmean(g["seconds_plan"] for _, g in ok),
+                )
                 out[hand][s][m] = cell
     return out
 
@@ -191,16 +220,25 @@ def completion_tables_markdown(summary: dict, n_per_set: int | None = None, seed
     completion time. ``summary``: :func:`summarize`; ``n_per_set`` and ``seed`` describe the run."""
     lines = ["# Completion results (paper Tables I–III)", ""]
     if n_per_set is not None:
-        lines += [f"{n_per_set} views per set, seed {seed}. Our means, then the paper's figures (theirs, on their "
-                  "data, SPEC §7; the paper has one \"Ours\"). Means over views where the method succeeded; "
-                  "n = successes/views.", ""]
+        lines += [
+            f"{n_per_set} views per set, seed {seed}. Our means, then the paper's figures (theirs, on their "
+            'data, SPEC §7; the paper has one "Ours"). Means over views where the method succeeded; '
+            "n = successes/views.",
+            "",
+        ]
     sets = [s for s in VIEW_SETS if any(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS)]
     for number, metric, title in TABLES:
-        lines += [f"## Table {number}: {title}", "",
-                  *_header(["View set", *METHODS, "paper Partial", "paper Mirror", "paper Ours"])]
+        lines += [
+            f"## Table {number}: {title}",
+            "",
+            *_header(["View set", *METHODS, "paper Partial", "paper Mirror", "paper Ours"]),
+        ]
         for s in sets:
-            cells = [f"{fmt_metric(summary[s][m][metric], metric)} (n={summary[s][m]['n']}/"
-                     f"{summary[s][m]['n'] + summary[s][m]['failed']})" for m in METHODS]
+            cells = [
+                f"{fmt_metric(summary[s][m][metric], metric)} (n={summary[s][m]['n']}/"
+                f"{summary[s][m]['n'] + summary[s][m]['failed']})"
+                for m in METHODS
+            ]
             paper = [fmt_metric(paper_figure(metric, s, m), metric) for m in PAPER_METHODS]
             lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
         lines.append("")
@@ -210,8 +248,12 @@ def completion_tables_markdown(summary: dict, n_per_set: int | None = None, seed
         vals = [(summary[s][m]["seconds"], summary[s][m]["n"]) for s in sets if summary[s][m]["n"]]
         n = sum(c for _, c in vals)
         times.append(fmt(sum(v * c for v, c in vals) / n if n else None, 2))
-    lines += ["| " + " | ".join(times) + " |", "",
-              "Other metrics (Hausdorff max and RMS) are in rows.csv and tables.csv.", ""]
+    lines += [
+        "| " + " | ".join(times) + " |",
+        "",
+        "Other metrics (Hausdorff max and RMS) are in rows.csv and tables.csv.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -221,8 +263,11 @@ def kind_table_markdown(rows: list[dict]) -> str:
     kinds = sorted({r.get("kind", "") for r in rows} - {""})
     if not kinds:
         return ""
-    lines = ["## Per shape kind: J80 / mean surface distance (mm)", "",
-             *_header(["View set", "kind", "views", *METHODS])]
+    lines = [
+        "## Per shape kind: J80 / mean surface distance (mm)",
+        "",
+        *_header(["View set", "kind", "views", *METHODS]),
+    ]
     for s in VIEW_SETS:
         for k in kinds:
             sel = [r for r in rows if r["view_set"] == s and r.get("kind") == k]
@@ -231,11 +276,17 @@ def kind_table_markdown(rows: list[dict]) -> str:
             cells = []
             for m in METHODS:
                 ok = [r for r in sel if r["method"] == m and not r["error"]]
-                cells.append(f"{fmt_metric(nanmean(r['j80'] for r in ok), 'j80')} / "
-                             f"{fmt_metric(nanmean(r['hausdorff_mean_mm'] for r in ok), 'hausdorff_mean_mm')}"
-                             if ok else "–")
-            lines.append(f"| {SET_TITLES[s]} | {k} | {len({(r['object'], r['view']) for r in sel})} | "
-                         + " | ".join(cells) + " |")
+                cells.append(
+                    f"{fmt_metric(nanmean(r['j80'] for r in ok), 'j80')} / "
+                    f"{fmt_metric(nanmean(r['hausdorff_mean_mm'] for r in ok), 'hausdorff_mean_mm')}"
+                    if ok
+                    else "–"
+                )
+            lines.append(
+                f"| {SET_TITLES[s]} | {k} | {len({(r['object'], r['view']) for r in sel})} | "
+                + " | ".join(cells)
+                + " |"
+            )
     return "\n".join(lines + [""])
 
 
@@ -245,43 +296,80 @@ def grasp_tables_markdown(g_summary: dict) -> str:
     lines = []
     for hand, by_set in g_summary.items():
         methods = [m for m in METHODS if any(m in by_set[s] for s in VIEW_SETS)]
-        lines += [f"# Grasp results (paper Tables IV and V), {hand} hand", "",
-                  "Grasps planned on each completion (the paper's views: no table, the object floating as rendered; "
-                  "tabletop views: on the table the segmentation found, in its frame), every planned grasp "
-                  "executed on the true mesh with the paper's protocol (SPEC §8) and lifted in simulation. Means "
-                  "over all executed grasps of the view set, shown as mean / median (the paper reports means); "
-                  "n = grasps (views without a grasp: see the quality table). Paper figures: theirs, on their data; "
-                  "their \"Ours\" beside our Ours-detailed; SPEC §8 has no holdout-view row for Table IV.", ""]
-        for key, title, digits in (("joint_error_deg", "joint error, degrees (lower is better)", 2),
-                                   ("pose_error_mm", "palm pose error, mm (lower is better)", 1)):
-            lines += [f"## Table IV: {title}", "",
-                      *_header(["View set", *methods, "paper Partial", "paper Mirror", "paper Ours"])]
+        lines += [
+            f"# Grasp results (paper Tables IV and V), {hand} hand",
+            "",
+            "Grasps planned on each completion (the paper's views: no table, the object floating as rendered; "
+            "tabletop views: on the table the segmentation found, in its frame), every planned grasp "
+            "executed on the true mesh with the paper's protocol (SPEC §8) and lifted in simulation. Means "
+            "over all executed grasps of the view set, shown as mean / median (the paper reports means); "
+            "n = grasps (views without a grasp: see the quality table). Paper figures: theirs, on their data; "
+            'their "Ours" beside our Ours-detailed; SPEC §8 has no holdout-view row for Table IV.',
+            "",
+        ]
+        for key, title, digits in (
+            ("joint_error_deg", "joint error, degrees (lower is better)", 2),
+            ("pose_error_mm", "palm pose error, mm (lower is better)", 1),
+        ):
+            lines += [
+                f"## Table IV: {title}",
+                "",
+                *_header(["View set", *methods, "paper Partial", "paper Mirror", "paper Ours"]),
+            ]
             for s in (s for s in VIEW_SETS if by_set[s]):
-                cells = [f"{fmt(c[key], digits)} / {fmt(c[key + '_median'], digits)} (n={c['grasps']})"
-                         if (c := by_set[s].get(m)) else "–" for m in methods]
+                cells = [
+                    f"{fmt(c[key], digits)} / {fmt(c[key + '_median'], digits)} (n={c['grasps']})"
+                    if (c := by_set[s].get(m))
+                    else "–"
+                    for m in methods
+                ]
                 paper = [fmt(paper_grasp(key, s, m), digits) for m in PAPER_METHODS]
                 lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
             lines.append("")
-        lines += ["## Table V analogue: simulated lift success, all grasps / best grasp per view (higher is better)",
-                  "", *_header(["View set", *methods])]
+        lines += [
+            "## Table V analogue: simulated lift success, all grasps / best grasp per view (higher is better)",
+            "",
+            *_header(["View set", *methods]),
+        ]
         for s in (*(s for s in VIEW_SETS if by_set[s]), "all"):
-            cells = [f"{fmt_share(c['lift_success'])} / {fmt_share(c['lift_success_best'])} "
-                     f"(n={c['grasps']}/{c['views']})" if (c := by_set[s].get(m)) else "–" for m in methods]
+            cells = [
+                f"{fmt_share(c['lift_success'])} / {fmt_share(c['lift_success_best'])} (n={c['grasps']}/{c['views']})"
+                if (c := by_set[s].get(m))
+                else "–"
+                for m in methods
+            ]
             lines.append(f"| {SET_TITLES.get(s, 'All views')} | " + " | ".join(cells) + " |")
-        lines += ["| paper, real robot (15 objects) | " + " | ".join(fmt_share(paper_lift(m)) for m in methods)
-                  + " |", "",
-                  "Best grasp: the planner's top-ranked grasp of each view (what a robot would execute; a view "
-                  "without any grasp counts as a failure), n = grasps/views. The paper's figures are real-robot "
-                  "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table).", "",
-                  "## Grasp quality and planning (all views)", "",
-                  *_header(["Method", "epsilon planned", "epsilon executed", "force closure planned",
-                            "force closure executed", "start clear", "views without grasp", "failed", "plan s/view"])]
+        lines += [
+            "| paper, real robot (15 objects) | " + " | ".join(fmt_share(paper_lift(m)) for m in methods) + " |",
+            "",
+            "Best grasp: the planner's top-ranked grasp of each view (what a robot would execute; a view "
+            "without any grasp counts as a failure), n = grasps/views. The paper's figures are real-robot "
+            "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table).",
+            "",
+            "## Grasp quality and planning (all views)",
+            "",
+            *_header(
+                [
+                    "Method",
+                    "epsilon planned",
+                    "epsilon executed",
+                    "force closure planned",
+                    "force closure executed",
+                    "start clear",
+                    "views without grasp",
+                    "failed",
+                    "plan s/view",
+                ]
+            ),
+        ]
         for m in methods:
             c = by_set["all"][m]
-            lines.append(f"| {m} | {fmt(c['epsilon_planned'], 3)} | {fmt(c['epsilon_executed'], 3)} | "
-                         f"{fmt_share(c['force_closure_planned'])} | {fmt_share(c['force_closure_executed'])} | "
-                         f"{fmt_share(c['start_clear'])} | {c['no_grasp']}/{c['views']} | {c['failed']} | "
-                         f"{fmt(c['seconds_plan'], 1)} |")
+            lines.append(
+                f"| {m} | {fmt(c['epsilon_planned'], 3)} | {fmt(c['epsilon_executed'], 3)} | "
+                f"{fmt_share(c['force_closure_planned'])} | {fmt_share(c['force_closure_executed'])} | "
+                f"{fmt_share(c['start_clear'])} | {c['no_grasp']}/{c['views']} | {c['failed']} | "
+                f"{fmt(c['seconds_plan'], 1)} |"
+            )
         lines += ["", "Per-grasp values are in grasp_rows.csv, per-view means in views/*.json.", ""]
     return "\n".join(lines)
 
@@ -293,27 +381,43 @@ def panel_markdown(summary: dict, grasps: dict) -> str:
     (``{view_set: {method: {"joint_error_deg", "pose_error_mm", "lift_success", ...}}}``, means
     over views). The "paper" column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
     """
-    counts = {s: max(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS) for s in VIEW_SETS
-              if s in summary}
+    counts = {s: max(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS) for s in VIEW_SETS if s in summary}
     sets = [s for s, n in counts.items() if n]
-    out = ["Views per set: " + ", ".join(f"{SET_TITLES[s]} ({SHORT_SET[s]}) {counts[s]}" for s in sets)
-           + ". Means over the views where the method succeeded.", ""]
-    for number, metric, title in (("I", "jaccard", "Jaccard ↑"), ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
-                                  ("III", "geodesic", "Geodesic divergence ↓")):
-        out += [f"**Table {number}: {title}**", "",
-                "| set | " + " | ".join(SHORT_METHOD[m] for m in METHODS) + " | paper |",
-                "|---|" + "---:|" * (len(METHODS) + 1)]
+    out = [
+        "Views per set: "
+        + ", ".join(f"{SET_TITLES[s]} ({SHORT_SET[s]}) {counts[s]}" for s in sets)
+        + ". Means over the views where the method succeeded.",
+        "",
+    ]
+    for number, metric, title in (
+        ("I", "jaccard", "Jaccard ↑"),
+        ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
+        ("III", "geodesic", "Geodesic divergence ↓"),
+    ):
+        out += [
+            f"**Table {number}: {title}**",
+            "",
+            "| set | " + " | ".join(SHORT_METHOD[m] for m in METHODS) + " | paper |",
+            "|---|" + "---:|" * (len(METHODS) + 1),
+        ]
         for s in sets:
             cells = [fmt_metric(summary[s][m][metric] if summary[s][m]["n"] else None, metric) for m in METHODS]
-            out.append(f"| {SHORT_SET[s]} | " + " | ".join(cells)
-                       + f" | {fmt_metric(paper_figure(metric, s, 'Ours-detailed'), metric)} |")
+            out.append(
+                f"| {SHORT_SET[s]} | "
+                + " | ".join(cells)
+                + f" | {fmt_metric(paper_figure(metric, s, 'Ours-detailed'), metric)} |"
+            )
         out.append("")
     if not grasps:
         out.append("_Table IV: no grasp results in this store._")
         return "\n".join(out)
-    out += ["**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
-            "errors (mean), share lifted; paper: joint ° / pose mm", "",
-            "| method | joint ° | pose mm | lift | paper |", "|---|---:|---:|:---:|---:|"]
+    out += [
+        "**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
+        "errors (mean), share lifted; paper: joint ° / pose mm",
+        "",
+        "| method | joint ° | pose mm | lift | paper |",
+        "|---|---:|---:|:---:|---:|",
+    ]
     for s in VIEW_SETS:
         rows = []
         for m in METHODS:
@@ -322,8 +426,10 @@ def panel_markdown(summary: dict, grasps: dict) -> str:
                 continue
             joint, pose = paper_grasp("joint_error_deg", s, m), paper_grasp("pose_error_mm", s, m)
             paper = "–" if math.isnan(joint) else f"{fmt(joint, 1)} / {fmt(pose, 0)}"
-            rows.append(f"| {SHORT_METHOD[m]} | {fmt(c['joint_error_deg'], 1)} | {fmt(c['pose_error_mm'], 1)} | "
-                        f"{fmt_share(c['lift_success'], 0)} | {paper} |")
+            rows.append(
+                f"| {SHORT_METHOD[m]} | {fmt(c['joint_error_deg'], 1)} | {fmt(c['pose_error_mm'], 1)} | "
+                f"{fmt_share(c['lift_success'], 0)} | {paper} |"
+            )
         if rows:
             out += [f"| _{SET_TITLES[s]}_ | | | | |", *rows]
     return "\n".join(out)
@@ -332,11 +438,29 @@ def panel_markdown(summary: dict, grasps: dict) -> str:
 # ----------------------------------------------------------------------------------------------
 # CSV
 
-CSV_FIELDS = ("table", "view_set", "method", "n", "failed", *METRICS, "seconds",
-              "paper_jaccard", "paper_hausdorff_mean_mm", "paper_geodesic",
-              "hand", "grasps", "no_grasp", *GRASP_MEANS, "joint_error_deg_median", "pose_error_mm_median",
-              "lift_success_best", "seconds_plan",
-              "paper_joint_error_deg", "paper_pose_error_mm", "paper_lift_success")
+CSV_FIELDS = (
+    "table",
+    "view_set",
+    "method",
+    "n",
+    "failed",
+    *METRICS,
+    "seconds",
+    "paper_jaccard",
+    "paper_hausdorff_mean_mm",
+    "paper_geodesic",
+    "hand",
+    "grasps",
+    "no_grasp",
+    *GRASP_MEANS,
+    "joint_error_deg_median",
+    "pose_error_mm_median",
+    "lift_success_best",
+    "seconds_plan",
+    "paper_joint_error_deg",
+    "paper_pose_error_mm",
+    "paper_lift_success",
+)
 
 
 def write_tables_csv(summary: dict, path: str | Path, g_summary: dict | None = None) -> None:
@@ -350,19 +474,45 @@ def write_tables_csv(summary: dict, path: str | Path, g_summary: dict | None = N
             c = summary[s][m]
             if not c["n"] + c["failed"]:
                 continue
-            rows.append({"table": "I-III", "view_set": s, "method": m, "n": c["n"], "failed": c["failed"],
-                         **{k: c[k] for k in (*METRICS, "seconds")},
-                         **{f"paper_{k}": paper_figure(k, s, m) for k in PAPER}})
+            rows.append(
+                {
+                    "table": "I-III",
+                    "view_set": s,
+                    "method": m,
+                    "n": c["n"],
+                    "failed": c["failed"],
+                    **{k: c[k] for k in (*METRICS, "seconds")},
+                    **{f"paper_{k}": paper_figure(k, s, m) for k in PAPER},
+                }
+            )
     for hand, by_set in (g_summary or {}).items():
         for s, cells in by_set.items():
             for m, c in cells.items():
-                rows.append({"table": "IV-V", "view_set": s, "method": m, "n": c["views"], "failed": c["failed"],
-                             "hand": hand, **{k: c[k] for k in ("grasps", "no_grasp", *GRASP_MEANS,
-                                                                "joint_error_deg_median", "pose_error_mm_median",
-                                                                "lift_success_best", "seconds_plan")},
-                             **{f"paper_{k}": paper_grasp(k, s, m) for k in PAPER_GRASP},
-                             # Table V has no view sets: the paper's figure sits on the "all" row.
-                             "paper_lift_success": paper_lift(m) if s == "all" else math.nan})
+                rows.append(
+                    {
+                        "table": "IV-V",
+                        "view_set": s,
+                        "method": m,
+                        "n": c["views"],
+                        "failed": c["failed"],
+                        "hand": hand,
+                        **{
+                            k: c[k]
+                            for k in (
+                                "grasps",
+                                "no_grasp",
+                                *GRASP_MEANS,
+                                "joint_error_deg_median",
+                                "pose_error_mm_median",
+                                "lift_success_best",
+                                "seconds_plan",
+                            )
+                        },
+                        **{f"paper_{k}": paper_grasp(k, s, m) for k in PAPER_GRASP},
+                        # Table V has no view sets: the paper's figure sits on the "all" row.
+                        "paper_lift_success": paper_lift(m) if s == "all" else math.nan,
+                    }
+                )
     atomic_write(path, csv_text(CSV_FIELDS, rows))
 
 
@@ -382,17 +532,62 @@ def view_csv(info, completions, grasps) -> str:
     for c in completions:
         g = by_method.get(c.method)
         gcols = [g.hand, *(getattr(g, k) for k in GRASP_FIELDS), g.error] if g else [""] * (len(GRASP_FIELDS) + 2)
-        rows.append([info.object, info.view, info.view_set, c.method, *(getattr(c, k) for k in METRICS), c.seconds,
-                     c.error, c.mesh or "", *gcols])
-    return _csv(["object", "view", "view_set", "method", *METRICS, "seconds", "error", "mesh", "grasp_hand",
-                 *(f"grasp_{k}" for k in GRASP_FIELDS), "grasp_error"], rows)
+        rows.append(
+            [
+                info.object,
+                info.view,
+                info.view_set,
+                c.method,
+                *(getattr(c, k) for k in METRICS),
+                c.seconds,
+                c.error,
+                c.mesh or "",
+                *gcols,
+            ]
+        )
+    return _csv(
+        [
+            "object",
+            "view",
+            "view_set",
+            "method",
+            *METRICS,
+            "seconds",
+            "error",
+            "mesh",
+            "grasp_hand",
+            *(f"grasp_{k}" for k in GRASP_FIELDS),
+            "grasp_error",
+        ],
+        rows,
+    )
 
 
 def objects_csv(objects) -> str:
     """Objects (:class:`ObjectSummary`) as CSV text: name, split, source, size (m), views, and each
     method's mean metrics and failures."""
     means = (*METRICS, "seconds")
-    rows = [[o.name, o.split, o.source, *o.extents, o.views,
-             *(v for m in METHODS for v in (*(o.mean(m, k) for k in means), o.failed.get(m, 0)))] for o in objects]
-    return _csv(["object", "split", "source", "extent_x_m", "extent_y_m", "extent_z_m", "views",
-                 *(f"{m}_{k}" for m in METHODS for k in (*means, "failed"))], rows)
+    rows = [
+        [
+            o.name,
+            o.split,
+            o.source,
+            *o.extents,
+            o.views,
+            *(v for m in METHODS for v in (*(o.mean(m, k) for k in means), o.failed.get(m, 0))),
+        ]
+        for o in objects
+    ]
+    return _csv(
+        [
+            "object",
+            "split",
+            "source",
+            "extent_x_m",
+            "extent_y_m",
+            "extent_z_m",
+            "views",
+            *(f"{m}_{k}" for m in METHODS for k in (*means, "failed")),
+        ],
+        rows,
+    )

@@ -25,9 +25,13 @@ from ..sim import catalogue
 PAPER_SETS = ("training_view", "holdout_view", "holdout_model")
 TABLETOP_SETS = ("tabletop_train_object", "tabletop_holdout_model")
 VIEW_SETS = PAPER_SETS + TABLETOP_SETS
-SET_TITLES = {"training_view": "Training Views", "holdout_view": "Holdout Views", "holdout_model": "Holdout Models",
-              "tabletop_train_object": "Tabletop, training objects",
-              "tabletop_holdout_model": "Tabletop, holdout models"}
+SET_TITLES = {
+    "training_view": "Training Views",
+    "holdout_view": "Holdout Views",
+    "holdout_model": "Holdout Models",
+    "tabletop_train_object": "Tabletop, training objects",
+    "tabletop_holdout_model": "Tabletop, holdout models",
+}
 TABLETOP_VIEW_OFFSET = 10_000  # tabletop test views are numbered from here; training data starts at 0
 TABLETOP_SIZE = (0.05, 0.30)  # largest side (m) of objects put on the test table: fits a hand
 
@@ -68,8 +72,10 @@ def _sample_paper(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
 
     rng = np.random.default_rng([seed, 4])
     names = sorted(e.name for e in catalogue.catalogue())
-    by_split = {"train": [n for n in names if catalogue.model_split(n) == "train"],
-                "holdout_model": [n for n in names if catalogue.model_split(n) == "holdout_model"]}
+    by_split = {
+        "train": [n for n in names if catalogue.model_split(n) == "train"],
+        "holdout_model": [n for n in names if catalogue.model_split(n) == "holdout_model"],
+    }
     total = int(np.prod(ORIENTATION_GRID))
     out: list[tuple[str, int, str]] = []
     for view_set in PAPER_SETS:

@@ -19,8 +19,8 @@ friction, SOFT_CONTACT_SPIN). The grasp succeeds when the object comes up with t
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pybullet as p
@@ -94,8 +94,14 @@ def joint_error(hand: Hand, planned: dict[str, float], executed: dict[str, float
     return float(np.mean(diffs))
 
 
-def execute_grasps(grasps: Sequence[Grasp], true_mesh_world: trimesh.Trimesh, *, table: bool = True,
-                   lift: bool = False, shake: bool = False) -> list[ExecutionResult]:
+def execute_grasps(
+    grasps: Sequence[Grasp],
+    true_mesh_world: trimesh.Trimesh,
+    *,
+    table: bool = True,
+    lift: bool = False,
+    shake: bool = False,
+) -> list[ExecutionResult]:
     """Execute every grasp on ``true_mesh_world`` (world frame) with the protocol of SPEC
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
     executed state."""
@@ -110,32 +116,48 @@ def execute_grasps(grasps: Sequence[Grasp], true_mesh_world: trimesh.Trimesh, *,
                 if g.hand != hand_name:
                     continue
                 planned = [g.dofs[n] for n in hand.dof_names]
-                clear, approach, closed = approach_and_close(world, g.T_world_palm, planned, back_off=BACK_OFF,
-                                                             max_approach=BACK_OFF, targets=(planned, None))
+                clear, approach, closed = approach_and_close(
+                    world, g.T_world_palm, planned, back_off=BACK_OFF, max_approach=BACK_OFF, targets=(planned, None)
+                )
                 contacts, q = object_contacts(closed, body, com, radius)
                 T = world.palm_pose()
                 joints = dict(zip(hand.joint_names, map(float, closed.joints)))
                 results[i] = ExecutionResult(
-                    hand=hand_name, T_world_palm=T, dofs=dict(zip(hand.dof_names, map(float, closed.dofs))),
-                    joints=joints, contacts=contacts, epsilon=q.epsilon, volume=q.volume,
+                    hand=hand_name,
+                    T_world_palm=T,
+                    dofs=dict(zip(hand.dof_names, map(float, closed.dofs))),
+                    joints=joints,
+                    contacts=contacts,
+                    epsilon=q.epsilon,
+                    volume=q.volume,
                     joint_error=joint_error(hand, g.joints, joints),
                     pose_error=1000.0 * float(np.linalg.norm(T[:3, 3] - g.T_world_palm[:3, 3])),
-                    start_clear=clear, approach_contact=approach.contact)
+                    start_clear=clear,
+                    approach_contact=approach.contact,
+                )
     if lift:
         for r in results:
             r.lift = lift_test(r, true_mesh_world, table=table, shake=shake)
     return results
 
 
-def execute_grasp(grasp: Grasp, true_mesh_world: trimesh.Trimesh, *, table: bool = True, lift: bool = False,
-                  shake: bool = False) -> ExecutionResult:
+def execute_grasp(
+    grasp: Grasp, true_mesh_world: trimesh.Trimesh, *, table: bool = True, lift: bool = False, shake: bool = False
+) -> ExecutionResult:
     """:func:`execute_grasps` for one grasp (a world of its own: batch grasps of one object)."""
     return execute_grasps([grasp], true_mesh_world, table=table, lift=lift, shake=shake)[0]
 
 
-def lift_test(state: HandState, true_mesh_world: trimesh.Trimesh, *, table: bool = True,
-              lift_height: float = LIFT_HEIGHT, shake: bool = False, mass: float = 0.2,
-              friction: float = 1.0) -> LiftResult:
+def lift_test(
+    state: HandState,
+    true_mesh_world: trimesh.Trimesh,
+    *,
+    table: bool = True,
+    lift_height: float = LIFT_HEIGHT,
+    shake: bool = False,
+    mass: float = 0.2,
+    friction: float = 1.0,
+) -> LiftResult:
     """Whether the hand, at ``state``'s palm pose (world frame) and joints, lifts the object.
 
     The object (``mass`` kg, ``friction`` on it and on every hand link) starts where
@@ -152,25 +174,39 @@ def lift_test(state: HandState, true_mesh_world: trimesh.Trimesh, *, table: bool
         set_joint_positions(hb, [state.joints[n] for n in hand.joint_names])
         world.set_palm_pose(state.T_world_palm)
         for link in hb.link_index.values():
-            p.changeDynamics(hb.body, link, lateralFriction=friction, spinningFriction=SOFT_CONTACT_SPIN,
-                             physicsClientId=c)
+            p.changeDynamics(
+                hb.body, link, lateralFriction=friction, spinningFriction=SOFT_CONTACT_SPIN, physicsClientId=c
+            )
         p.setGravity(0.0, 0.0, -9.81, physicsClientId=c)
         dt = p.getPhysicsEngineParameters(physicsClientId=c)["fixedTimeStep"]
 
         # The arm: a fixed constraint from the world to the palm's inertial frame, moved by its pivot.
         start_pos, orn = p.getBasePositionAndOrientation(hb.body, physicsClientId=c)
-        cid = p.createConstraint(hb.body, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0], start_pos,
-                                 childFrameOrientation=orn, physicsClientId=c)
+        cid = p.createConstraint(
+            hb.body,
+            -1,
+            -1,
+            -1,
+            p.JOINT_FIXED,
+            [0, 0, 0],
+            [0, 0, 0],
+            start_pos,
+            childFrameOrientation=orn,
+            physicsClientId=c,
+        )
         p.changeConstraint(cid, start_pos, orn, maxForce=HOLD_FORCE, physicsClientId=c)
 
         # Fingers squeeze towards fully closed with their URDF efforts; preshape joints hold.
         fingers = hand.closing_joints
         closed = hand.joints_from_dofs(hand.dof_closed)
         target = [float(closed[k]) if fingers[k] else state.joints[n] for k, n in enumerate(hand.joint_names)]
-        forces = [p.getJointInfo(hb.body, j, physicsClientId=c)[10] if fingers[k] else SPREAD_FORCE
-                  for k, j in enumerate(hb.joint_index)]
-        p.setJointMotorControlArray(hb.body, list(hb.joint_index), p.POSITION_CONTROL,
-                                    targetPositions=target, forces=forces, physicsClientId=c)
+        forces = [
+            p.getJointInfo(hb.body, j, physicsClientId=c)[10] if fingers[k] else SPREAD_FORCE
+            for k, j in enumerate(hb.joint_index)
+        ]
+        p.setJointMotorControlArray(
+            hb.body, list(hb.joint_index), p.POSITION_CONTROL, targetPositions=target, forces=forces, physicsClientId=c
+        )
 
         def com_in_palm() -> np.ndarray:
             T = world.palm_pose()
@@ -184,14 +220,17 @@ def lift_test(state: HandState, true_mesh_world: trimesh.Trimesh, *, table: bool
         trajectory += [trajectory[-1]] * int(round(HOLD_SECONDS / dt))
         if shake:
             n_shake = int(round(SHAKE_SECONDS / dt))
-            trajectory += [trajectory[-1] + [SHAKE_AMPLITUDE * math.sin(4 * math.pi * (k + 1) / n_shake), 0.0, 0.0]
-                           for k in range(n_shake)]
+            trajectory += [
+                trajectory[-1] + [SHAKE_AMPLITUDE * math.sin(4 * math.pi * (k + 1) / n_shake), 0.0, 0.0]
+                for k in range(n_shake)
+            ]
         grasped = None
         for k, offset in enumerate(trajectory):
             if k == int(round(SETTLE_SECONDS / dt)):
                 grasped = com_in_palm()  # after the squeeze, before the lift
-            p.changeConstraint(cid, list(map(float, np.add(start_pos, offset))), orn, maxForce=HOLD_FORCE,
-                               physicsClientId=c)
+            p.changeConstraint(
+                cid, list(map(float, np.add(start_pos, offset))), orn, maxForce=HOLD_FORCE, physicsClientId=c
+            )
             p.stepSimulation(physicsClientId=c)
         rise = p.getBasePositionAndOrientation(body, physicsClientId=c)[0][2] - z0
         slip = float(np.linalg.norm(com_in_palm() - grasped))

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cache, cached_property
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 import pybullet as p
@@ -35,6 +35,7 @@ HAND_NAMES = ("barrett", "panda")
 
 # ---------------------------------------------------------------------------------------------
 # A minimal URDF reader: enough for forward kinematics and drawing, independent of pybullet.
+
 
 @cache
 def _mesh_file(path: Path) -> trimesh.Trimesh:
@@ -142,10 +143,13 @@ class UrdfModel:
     joints: tuple[UrdfJoint, ...]  # parents before children
 
     @staticmethod
-    def load(path: Path) -> "UrdfModel":
+    def load(path: Path) -> UrdfModel:
         robot = ET.parse(path).getroot()
-        colours = {m.get("name"): tuple(float(v) for v in m.find("color").get("rgba").split())
-                   for m in robot.findall("material") if m.find("color") is not None}
+        colours = {
+            m.get("name"): tuple(float(v) for v in m.find("color").get("rgba").split())
+            for m in robot.findall("material")
+            if m.find("color") is not None
+        }
 
         def geometries(link: ET.Element, tag: str) -> tuple[Geometry, ...]:
             out = []
@@ -174,8 +178,10 @@ class UrdfModel:
             limit = j.find("limit")
             axis = j.find("axis")
             joint = UrdfJoint(
-                name=j.get("name"), kind=j.get("type"),
-                parent=j.find("parent").get("link"), child=j.find("child").get("link"),
+                name=j.get("name"),
+                kind=j.get("type"),
+                parent=j.find("parent").get("link"),
+                child=j.find("child").get("link"),
                 T_parent_joint=_origin(j.find("origin")),
                 axis=np.array([float(v) for v in (axis.get("xyz") if axis is not None else "1 0 0").split()]),
                 lower=float(limit.get("lower", "-inf")) if limit is not None else -math.inf,
@@ -202,6 +208,7 @@ class UrdfModel:
 
 # ---------------------------------------------------------------------------------------------
 # Hand descriptions.
+
 
 @dataclass(frozen=True)
 class JointCoupling:
@@ -279,8 +286,10 @@ class Hand:
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) of the joints in ``joint_names`` order, from the URDF."""
         by_name = {j.name: j for j in self.model.joints}
-        return (np.array([by_name[n].lower for n in self.joint_names]),
-                np.array([by_name[n].upper for n in self.joint_names]))
+        return (
+            np.array([by_name[n].lower for n in self.joint_names]),
+            np.array([by_name[n].upper for n in self.joint_names]),
+        )
 
     @property
     def closing_dofs(self) -> np.ndarray:
@@ -372,14 +381,18 @@ def _barrett() -> Hand:
         if f != "f3":
             coupling.append(JointCoupling(f"{f}_spread", 0))
         coupling += [JointCoupling(f"{f}_proximal", dof), JointCoupling(f"{f}_distal", dof, 1.0 / 3.0, distal_offset)]
-    fingers = tuple(Finger(f, dof, (f"{f}_proximal", f"{f}_distal"), f"{f}_distal", (f"{f}_distal",))
-                    for f, dof in (("f1", 1), ("f2", 2), ("f3", 3)))
+    fingers = tuple(
+        Finger(f, dof, (f"{f}_proximal", f"{f}_distal"), f"{f}_distal", (f"{f}_distal",))
+        for f, dof in (("f1", 1), ("f2", 2), ("f3", 3))
+    )
     # Inner faces: the finger frame's +x points at the palm axis; proximal links are 20 mm thick,
     # distal links 18 mm (tools/make_barrett_urdf.py).
     contacts = [VirtualContact("palm", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))]
     for f in ("f1", "f2", "f3"):
-        contacts += [VirtualContact(f"{f}_proximal", (0.010, 0.0, 0.045), (1.0, 0.0, 0.0)),
-                     VirtualContact(f"{f}_distal", (0.009, 0.0, 0.030), (1.0, 0.0, 0.0))]
+        contacts += [
+            VirtualContact(f"{f}_proximal", (0.010, 0.0, 0.045), (1.0, 0.0, 0.0)),
+            VirtualContact(f"{f}_distal", (0.009, 0.0, 0.030), (1.0, 0.0, 0.0)),
+        ]
     return Hand(
         name="barrett",
         urdf=HANDS_DIR / "barrett_bh8_280.urdf",
@@ -427,14 +440,14 @@ def get_hand(name: str) -> Hand:
 # ---------------------------------------------------------------------------------------------
 # Meshes for drawing.
 
+
 def hand_meshes(hand: Hand, joints: Sequence[float]) -> list[tuple[trimesh.Trimesh, np.ndarray]]:
     """Visual elements of the hand at ``joints``: (mesh in its own frame, ``T_palm_mesh``) pairs.
 
     Meshes are fresh copies, coloured from the URDF materials; safe to modify.
     """
     poses = hand.link_poses(joints)
-    return [(g.mesh(), poses[link] @ g.T_link_geom)
-            for link, geoms in hand.model.visuals.items() for g in geoms]
+    return [(g.mesh(), poses[link] @ g.T_link_geom) for link, geoms in hand.model.visuals.items() for g in geoms]
 
 
 def hand_mesh(hand: Hand, joints: Sequence[float]) -> trimesh.Trimesh:
@@ -448,6 +461,7 @@ def hand_mesh(hand: Hand, joints: Sequence[float]) -> trimesh.Trimesh:
 
 # ---------------------------------------------------------------------------------------------
 # pybullet.
+
 
 def _T_link_inertial(client: int, body: int) -> np.ndarray:
     info = p.getDynamicsInfo(body, -1, physicsClientId=client)
@@ -499,16 +513,24 @@ def load_hand(client: int, name: str | Hand, T_world_palm: np.ndarray | None = N
     hand = get_hand(name) if isinstance(name, str) else name
     T = np.eye(4) if T_world_palm is None else np.asarray(T_world_palm, float)
     pos, quat = pose_to_pq(T)
-    body = p.loadURDF(str(hand.urdf), pos, quat, useFixedBase=False,
-                      flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+    body = p.loadURDF(
+        str(hand.urdf), pos, quat, useFixedBase=False, flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client
+    )
     link_index = {p.getBodyInfo(body, physicsClientId=client)[0].decode(): -1}
     joint_by_name = {}
     for i in range(p.getNumJoints(body, physicsClientId=client)):
         info = p.getJointInfo(body, i, physicsClientId=client)
         joint_by_name[info[1].decode()] = i
         link_index[info[12].decode()] = i
-    hb = HandBody(hand, client, body, link_index, tuple(joint_by_name[n] for n in hand.joint_names),
-                  np.array(hand.dof_open, float), hand.joints_from_dofs(hand.dof_open))
+    hb = HandBody(
+        hand,
+        client,
+        body,
+        link_index,
+        tuple(joint_by_name[n] for n in hand.joint_names),
+        np.array(hand.dof_open, float),
+        hand.joints_from_dofs(hand.dof_open),
+    )
     set_base_pose(client, body, T)
     set_joints(hb, hand.dof_open)
     return hb
@@ -517,8 +539,9 @@ def load_hand(client: int, name: str | Hand, T_world_palm: np.ndarray | None = N
 def set_joint_positions(hb: HandBody, joints: Sequence[float]) -> None:
     """Set every movable joint (``hand.joint_names`` order), clipped to its limits; dofs untouched."""
     hb.joints = hb.hand.clip_joints(joints)
-    p.resetJointStatesMultiDof(hb.body, list(hb.joint_index), [[float(q)] for q in hb.joints],
-                               physicsClientId=hb.client)
+    p.resetJointStatesMultiDof(
+        hb.body, list(hb.joint_index), [[float(q)] for q in hb.joints], physicsClientId=hb.client
+    )
 
 
 def set_joints(hb: HandBody, dofs: Sequence[float]) -> None:

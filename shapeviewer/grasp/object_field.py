@@ -47,11 +47,15 @@ class ObjectField:
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         scene = raycasting_scene(mesh)
         votes = 1 if mesh.is_watertight else 3
-        inside = (scene.compute_occupancy(o3d.core.Tensor(grid.astype(np.float32)), nsamples=votes)
-                  .numpy() > 0.5).reshape(shape)
+        inside = (
+            scene.compute_occupancy(o3d.core.Tensor(grid.astype(np.float32)), nsamples=votes).numpy() > 0.5
+        ).reshape(shape)
         # Node-to-node distances to the other side put the surface about half a step away.
-        sd = np.where(inside, 0.5 * h - h * ndimage.distance_transform_edt(inside),
-                      h * ndimage.distance_transform_edt(~inside) - 0.5 * h).reshape(-1)
+        sd = np.where(
+            inside,
+            0.5 * h - h * ndimage.distance_transform_edt(inside),
+            h * ndimage.distance_transform_edt(~inside) - 0.5 * h,
+        ).reshape(-1)
         # A k-d tree query is cheap near the samples and slow far from them: only the band.
         band = np.flatnonzero(np.abs(sd) < 2.5 * h)
         n_samples = int(np.clip(mesh.area / 1e-6, 5_000, 40_000))  # about one per mm^2
@@ -79,8 +83,11 @@ class ObjectField:
             for dy in (0, 1):
                 for dz in (0, 1):
                     idx.append(base + (dx * ny + dy) * nz + dz)
-                    w.append((t[:, 0] if dx else 1 - t[:, 0]) * (t[:, 1] if dy else 1 - t[:, 1])
-                             * (t[:, 2] if dz else 1 - t[:, 2]))
+                    w.append(
+                        (t[:, 0] if dx else 1 - t[:, 0])
+                        * (t[:, 1] if dy else 1 - t[:, 1])
+                        * (t[:, 2] if dz else 1 - t[:, 2])
+                    )
         return np.stack(idx, axis=1), np.stack(w, axis=1)
 
     def nearest_signed_distance(self, points: np.ndarray) -> np.ndarray:

@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pybullet as p
@@ -52,10 +52,16 @@ APPROACH_SLACK = 0.03  # m: planning approaches this much beyond the back-off, f
 # ---------------------------------------------------------------------------------------------
 # The pybullet stage.
 
-def approach_and_close(world: GraspWorld, T_world_palm: np.ndarray, preshape: Sequence[float], *,
-                       back_off: float = BACK_OFF, max_approach: float = BACK_OFF,
-                       targets: Sequence[Sequence[float] | None] = (None,)
-                       ) -> tuple[bool, ApproachResult, CloseResult | None]:
+
+def approach_and_close(
+    world: GraspWorld,
+    T_world_palm: np.ndarray,
+    preshape: Sequence[float],
+    *,
+    back_off: float = BACK_OFF,
+    max_approach: float = BACK_OFF,
+    targets: Sequence[Sequence[float] | None] = (None,),
+) -> tuple[bool, ApproachResult, CloseResult | None]:
     """The protocol of SPEC section 8 on the hand of ``world``.
 
     Set the palm at ``T_world_palm`` (world frame) with the dofs ``preshape`` and open the hand;
@@ -77,8 +83,9 @@ def approach_and_close(world: GraspWorld, T_world_palm: np.ndarray, preshape: Se
     return clear, approach, closed
 
 
-def object_contacts(closed: CloseResult, body: int, com: np.ndarray, radius: float
-                    ) -> tuple[tuple[GraspContact, ...], GraspQuality]:
+def object_contacts(
+    closed: CloseResult, body: int, com: np.ndarray, radius: float
+) -> tuple[tuple[GraspContact, ...], GraspQuality]:
     """The closed hand's contacts with object ``body`` and their qualities, for the object's
     centre of mass ``com`` (world frame) and max radius (m); no contacts: (0, 0)."""
     contacts = tuple(GraspContact.from_world(c) for c in closed.contacts if c.body == body)
@@ -93,8 +100,16 @@ def _grasp_from_world(world: GraspWorld, body: int, obj: ObjectField, closed: Cl
     contacts, q = object_contacts(closed, body, obj.com, obj.max_radius)
     vc_p, vc_n = hand.virtual_contacts_palm(closed.joints)
     energy = float(obj.contact_energy(vc_p @ T[:3, :3].T + T[:3, 3], vc_n @ T[:3, :3].T))
-    return Grasp(hand.name, T, dict(zip(hand.dof_names, map(float, closed.dofs))),
-                 dict(zip(hand.joint_names, map(float, closed.joints))), contacts, q.epsilon, q.volume, energy)
+    return Grasp(
+        hand.name,
+        T,
+        dict(zip(hand.dof_names, map(float, closed.dofs))),
+        dict(zip(hand.joint_names, map(float, closed.joints))),
+        contacts,
+        q.epsilon,
+        q.volume,
+        energy,
+    )
 
 
 def _table_gap(world: GraspWorld, radius: float) -> float:
@@ -112,6 +127,7 @@ def _fingers_touch(hand: Hand, contacts: Sequence[GraspContact]) -> bool:
 
 # ---------------------------------------------------------------------------------------------
 # Planning.
+
 
 @dataclass(frozen=True)
 class PlanStats:
@@ -133,17 +149,42 @@ class PlanResult:
     stats: PlanStats
 
 
-def plan_grasps(mesh_world: trimesh.Trimesh, *, hand: str = "barrett", n_grasps: int = 20, seed: int = 0,
-                table: bool = True, budget_seconds: float | None = None, progress: ProgressFn | None = None,
-                cancel: CancelFn | None = None) -> list[Grasp]:
+def plan_grasps(
+    mesh_world: trimesh.Trimesh,
+    *,
+    hand: str = "barrett",
+    n_grasps: int = 20,
+    seed: int = 0,
+    table: bool = True,
+    budget_seconds: float | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
+) -> list[Grasp]:
     """Up to ``n_grasps`` distinct grasps of ``mesh_world``, best first (see :func:`plan`)."""
-    return plan(mesh_world, hand=hand, n_grasps=n_grasps, seed=seed, table=table, budget_seconds=budget_seconds,
-                progress=progress, cancel=cancel).grasps
+    return plan(
+        mesh_world,
+        hand=hand,
+        n_grasps=n_grasps,
+        seed=seed,
+        table=table,
+        budget_seconds=budget_seconds,
+        progress=progress,
+        cancel=cancel,
+    ).grasps
 
 
-def plan(mesh_world: trimesh.Trimesh, *, hand: str = "barrett", n_grasps: int = 20, seed: int = 0,
-         table: bool = True, budget_seconds: float | None = None, progress: ProgressFn | None = None,
-         cancel: CancelFn | None = None, settings: PlanSettings = PlanSettings()) -> PlanResult:
+def plan(
+    mesh_world: trimesh.Trimesh,
+    *,
+    hand: str = "barrett",
+    n_grasps: int = 20,
+    seed: int = 0,
+    table: bool = True,
+    budget_seconds: float | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
+    settings: PlanSettings = PlanSettings(),
+) -> PlanResult:
     """Up to ``n_grasps`` distinct grasps of ``mesh_world`` (world frame, metres, standing on the
     table z = 0 when ``table``), best first: force-closure grasps by epsilon, then the rest.
 
@@ -195,8 +236,7 @@ def plan(mesh_world: trimesh.Trimesh, *, hand: str = "barrett", n_grasps: int = 
         with GraspWorld(hand_, table=table) as world:
             body = world.add_object(mesh_world, decompose=True)
             for j, i in enumerate(picks):
-                if (j >= n_sim and len(_best_distinct(grasps, n_grasps, force_closure=True)) >= n_grasps) \
-                        or over(0.95):
+                if (j >= n_sim and len(_best_distinct(grasps, n_grasps, force_closure=True)) >= n_grasps) or over(0.95):
                     break
                 if stopped():
                     cancelled = True
@@ -204,8 +244,9 @@ def plan(mesh_world: trimesh.Trimesh, *, hand: str = "barrett", n_grasps: int = 
                 T = np.eye(4)
                 T[:3, :3] = found.R[i]
                 T[:3, 3] = found.palm[i]
-                clear, _, closed = approach_and_close(world, T, hs.preshapes[found.shape[i]],
-                                                      max_approach=BACK_OFF + APPROACH_SLACK)
+                clear, _, closed = approach_and_close(
+                    world, T, hs.preshapes[found.shape[i]], max_approach=BACK_OFF + APPROACH_SLACK
+                )
                 simulated += 1
                 report(0.5 + 0.5 * min(1.0, (j + 1) / n_sim))
                 # Reject a start in collision and any touch of the table (by the approach or a finger).
@@ -223,9 +264,14 @@ def plan(mesh_world: trimesh.Trimesh, *, hand: str = "barrett", n_grasps: int = 
 
 def _best_distinct(grasps: list[Grasp], n: int, force_closure: bool = False) -> list[Grasp]:
     """Up to ``n`` distinct grasps, best first: force closure, then epsilon, volume, energy."""
-    ranked = sorted((g for g in grasps if g.force_closure or not force_closure),
-                    key=lambda g: (-g.force_closure, -g.epsilon, -g.volume, g.energy))
-    keep = distinct(np.array([g.position for g in ranked]).reshape(-1, 3),
-                    np.array([g.T_world_palm[:3, :3] for g in ranked]).reshape(-1, 3, 3), range(len(ranked)), n)
+    ranked = sorted(
+        (g for g in grasps if g.force_closure or not force_closure),
+        key=lambda g: (-g.force_closure, -g.epsilon, -g.volume, g.energy),
+    )
+    keep = distinct(
+        np.array([g.position for g in ranked]).reshape(-1, 3),
+        np.array([g.T_world_palm[:3, :3] for g in ranked]).reshape(-1, 3, 3),
+        range(len(ranked)),
+        n,
+    )
     return [ranked[i] for i in keep]
-

@@ -66,8 +66,14 @@ def friction_cone(force_direction: np.ndarray, mu: float = FRICTION, n_edges: in
     return n[None, :] + mu * (np.cos(angles)[:, None] * t1[None, :] + np.sin(angles)[:, None] * t2[None, :])
 
 
-def contact_wrenches(points: np.ndarray, normals: np.ndarray, com: np.ndarray, radius: float,
-                     mu: float = FRICTION, n_edges: int = CONE_EDGES) -> np.ndarray:
+def contact_wrenches(
+    points: np.ndarray,
+    normals: np.ndarray,
+    com: np.ndarray,
+    radius: float,
+    mu: float = FRICTION,
+    n_edges: int = CONE_EDGES,
+) -> np.ndarray:
     """All friction-cone edge wrenches ((N * n_edges) x 6) of N contacts.
 
     ``points``: contact positions on the object (N x 3). ``normals``: the object's outward surface
@@ -100,7 +106,13 @@ def wrench_space_quality(wrenches: np.ndarray) -> GraspQuality:
     return GraspQuality(float(np.min(-hull.equations[:, -1])), float(hull.volume))
 
 
-def grasp_quality(points: np.ndarray, normals: np.ndarray, com: np.ndarray, radius: float,
-                  mu: float = FRICTION, n_edges: int = CONE_EDGES) -> GraspQuality:
+def grasp_quality(
+    points: np.ndarray,
+    normals: np.ndarray,
+    com: np.ndarray,
+    radius: float,
+    mu: float = FRICTION,
+    n_edges: int = CONE_EDGES,
+) -> GraspQuality:
     """Epsilon and volume of a grasp from its contacts (see :func:`contact_wrenches` for arguments)."""
     return wrench_space_quality(contact_wrenches(points, normals, com, radius, mu, n_edges))

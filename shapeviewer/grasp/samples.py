@@ -55,7 +55,7 @@ def _surface_samples(hand: Hand, link: str, spacing: float) -> tuple[np.ndarray,
         mesh = g.mesh()
         # Poisson-disc-like: oversample, then thin to the spacing (trimesh's sample_surface_even
         # does the same but warns whenever it keeps fewer points than asked for).
-        count = max(int(math.ceil(mesh.area / spacing ** 2)), 1)
+        count = max(int(math.ceil(mesh.area / spacing**2)), 1)
         sampled, faces = trimesh.sample.sample_surface(mesh, 3 * count, seed=0)
         sampled, keep = trimesh.points.remove_close(sampled, 0.7 * spacing)
         local = np.vstack([sampled, mesh.vertices])
@@ -181,6 +181,13 @@ def hand_samples(name: str) -> HandSamples:
     vc_n = np.stack([poses[v.link][..., :3, :3] @ np.asarray(v.normal, float) for v in hand.virtual_contacts], axis=2)
     # float32 halves the memory traffic of the vectorised evaluation, which is what it costs.
     f32 = np.float32
-    return HandSamples(preshapes, _pad(approach_pts).astype(f32), _pad(body_pts).astype(f32), close.astype(f32),
-                       vc_p, vc_n, vc_finger, n_init)
-
+    return HandSamples(
+        preshapes,
+        _pad(approach_pts).astype(f32),
+        _pad(body_pts).astype(f32),
+        close.astype(f32),
+        vc_p,
+        vc_n,
+        vc_finger,
+        n_init,
+    )

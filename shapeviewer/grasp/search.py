@@ -12,8 +12,8 @@ after the approach and the closing, both computed from precomputed samples
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -45,17 +45,25 @@ class Candidates:
     palm: np.ndarray
     energy: np.ndarray
 
-    def take(self, idx) -> "Candidates":
+    def take(self, idx) -> Candidates:
         return Candidates(self.R[idx], self.aim[idx], self.shape[idx], self.palm[idx], self.energy[idx])
 
     @staticmethod
-    def concat(parts: Sequence["Candidates"]) -> "Candidates":
-        return Candidates(*(np.concatenate([getattr(part, k) for part in parts])
-                            for k in ("R", "aim", "shape", "palm", "energy")))
+    def concat(parts: Sequence[Candidates]) -> Candidates:
+        return Candidates(
+            *(np.concatenate([getattr(part, k) for part in parts]) for k in ("R", "aim", "shape", "palm", "energy"))
+        )
 
 
-def _evaluate(obj: ObjectField, hs: HandSamples, R: np.ndarray, aim: np.ndarray, shape: np.ndarray,
-              table: bool, start_distance: float) -> tuple[np.ndarray, np.ndarray]:
+def _evaluate(
+    obj: ObjectField,
+    hs: HandSamples,
+    R: np.ndarray,
+    aim: np.ndarray,
+    shape: np.ndarray,
+    table: bool,
+    start_distance: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Palm positions (N x 3) and energies (N,) of candidates (see :mod:`shapeviewer.grasp.plan`)."""
     n = len(R)
     d = R[:, :, 2]
@@ -147,9 +155,16 @@ class PlanSettings:
     t_end: float = 0.0005
 
 
-def search(obj: ObjectField, hs: HandSamples, rng: np.random.Generator, table: bool, settings: PlanSettings,
-           report: ProgressFn, stopped: CancelFn, out_of_time: Callable[[], bool]
-           ) -> tuple[Candidates, int, bool]:
+def search(
+    obj: ObjectField,
+    hs: HandSamples,
+    rng: np.random.Generator,
+    table: bool,
+    settings: PlanSettings,
+    report: ProgressFn,
+    stopped: CancelFn,
+    out_of_time: Callable[[], bool],
+) -> tuple[Candidates, int, bool]:
     """The cheap stage: random candidates, then simulated annealing from the best distinct ones.
     Returns every state evaluated, the number of evaluations, and whether it was cancelled."""
     extent = np.asarray(obj.mesh.extents, float)
@@ -163,7 +178,7 @@ def search(obj: ObjectField, hs: HandSamples, rng: np.random.Generator, table: b
         palm, energy = np.zeros((len(R), 3)), np.full(len(R), np.inf)
         allowed = np.flatnonzero(_allowed(R, table))
         for i in range(0, len(allowed), BATCH):
-            sl = allowed[i:i + BATCH]
+            sl = allowed[i : i + BATCH]
             palm[sl], energy[sl] = _evaluate(obj, hs, R[sl], aim[sl], shape[sl], table, start_distance)
         evaluations += len(allowed)
         return Candidates(R, aim, shape, palm, energy)
@@ -175,8 +190,11 @@ def search(obj: ObjectField, hs: HandSamples, rng: np.random.Generator, table: b
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     if table:
         d[:, 2] = -np.abs(d[:, 2])
-    first = evaluate(_frames(d, rng.uniform(0, 2 * np.pi, n0)), centre + rng.normal(size=(n0, 3)) * 0.35 * extent,
-                     rng.integers(0, hs.n_init, n0))
+    first = evaluate(
+        _frames(d, rng.uniform(0, 2 * np.pi, n0)),
+        centre + rng.normal(size=(n0, 3)) * 0.35 * extent,
+        rng.integers(0, hs.n_init, n0),
+    )
     found = [first]
     report(0.05)
     order = np.argsort(first.energy, kind="stable")
@@ -201,7 +219,8 @@ def search(obj: ObjectField, hs: HandSamples, rng: np.random.Generator, table: b
         found.append(proposal)
         delta = proposal.energy - chains.energy
         accept = np.isfinite(proposal.energy) & (
-            (delta <= 0) | (rng.random(n_c) < np.exp(-np.clip(delta, 0, None) / temp)))
+            (delta <= 0) | (rng.random(n_c) < np.exp(-np.clip(delta, 0, None) / temp))
+        )
         for name in ("R", "aim", "shape", "palm", "energy"):
             getattr(chains, name)[accept] = getattr(proposal, name)[accept]
         report(0.05 + 0.45 * (k + 1) / settings.steps)

@@ -25,9 +25,9 @@ import io
 import json
 import logging
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import trimesh
@@ -70,13 +70,20 @@ def _contacts_from_list(items: list[dict]) -> tuple[GraspContact, ...]:
 
 def _state_to_dict(state: HandState) -> dict:
     return {
-        "hand": state.hand, "frame": "world",
-        "T_world_palm": _floats(state.T_world_palm), "position": _floats(state.position),
-        "quaternion_xyzw": _floats(state.quaternion_xyzw), "approach": _floats(state.approach),
-        "dof_names": list(state.dofs), "dof_values": [float(v) for v in state.dofs.values()],
-        "joint_names": list(state.joints), "joint_values": [float(v) for v in state.joints.values()],
+        "hand": state.hand,
+        "frame": "world",
+        "T_world_palm": _floats(state.T_world_palm),
+        "position": _floats(state.position),
+        "quaternion_xyzw": _floats(state.quaternion_xyzw),
+        "approach": _floats(state.approach),
+        "dof_names": list(state.dofs),
+        "dof_values": [float(v) for v in state.dofs.values()],
+        "joint_names": list(state.joints),
+        "joint_values": [float(v) for v in state.joints.values()],
         "contacts": _contacts_to_list(state.contacts),
-        "epsilon": float(state.epsilon), "volume": float(state.volume), "force_closure": bool(state.force_closure),
+        "epsilon": float(state.epsilon),
+        "volume": float(state.volume),
+        "force_closure": bool(state.force_closure),
     }
 
 
@@ -91,35 +98,65 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dic
     d["execution"] = None
     if execution is not None:
         e = _state_to_dict(execution)
-        e.update(joint_error=float(execution.joint_error), pose_error=float(execution.pose_error),
-                 start_clear=bool(execution.start_clear), approach_contact=bool(execution.approach_contact),
-                 lift=None if execution.lift is None else {
-                     "success": bool(execution.lift.success), "rise": float(execution.lift.rise),
-                     "slip": float(execution.lift.slip)})
+        e.update(
+            joint_error=float(execution.joint_error),
+            pose_error=float(execution.pose_error),
+            start_clear=bool(execution.start_clear),
+            approach_contact=bool(execution.approach_contact),
+            lift=None
+            if execution.lift is None
+            else {
+                "success": bool(execution.lift.success),
+                "rise": float(execution.lift.rise),
+                "slip": float(execution.lift.slip),
+            },
+        )
         d["execution"] = e
     return d
 
 
 def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
     """Inverse of :func:`grasp_to_dict`."""
-    grasp = Grasp(d["hand"], np.array(d["T_world_palm"], float), _named(d, "dof_names", "dof_values"),
-                  _named(d, "joint_names", "joint_values"), _contacts_from_list(d["contacts"]),
-                  float(d["epsilon"]), float(d["volume"]), float(d["energy"]), d.get("frame", "world"))
+    grasp = Grasp(
+        d["hand"],
+        np.array(d["T_world_palm"], float),
+        _named(d, "dof_names", "dof_values"),
+        _named(d, "joint_names", "joint_values"),
+        _contacts_from_list(d["contacts"]),
+        float(d["epsilon"]),
+        float(d["volume"]),
+        float(d["energy"]),
+        d.get("frame", "world"),
+    )
     e = d.get("execution")
     if e is None:
         return grasp, None
-    lift = None if e.get("lift") is None else LiftResult(bool(e["lift"]["success"]), float(e["lift"]["rise"]),
-                                                         float(e["lift"]["slip"]))
+    lift = (
+        None
+        if e.get("lift") is None
+        else LiftResult(bool(e["lift"]["success"]), float(e["lift"]["rise"]), float(e["lift"]["slip"]))
+    )
     execution = ExecutionResult(
-        e["hand"], np.array(e["T_world_palm"], float), _named(e, "dof_names", "dof_values"),
-        _named(e, "joint_names", "joint_values"), _contacts_from_list(e["contacts"]), float(e["epsilon"]),
-        float(e["volume"]), float(e["joint_error"]), float(e["pose_error"]), bool(e["start_clear"]),
-        bool(e["approach_contact"]), lift, e.get("frame", "world"))
+        e["hand"],
+        np.array(e["T_world_palm"], float),
+        _named(e, "dof_names", "dof_values"),
+        _named(e, "joint_names", "joint_values"),
+        _contacts_from_list(e["contacts"]),
+        float(e["epsilon"]),
+        float(e["volume"]),
+        float(e["joint_error"]),
+        float(e["pose_error"]),
+        bool(e["start_clear"]),
+        bool(e["approach_contact"]),
+        lift,
+        e.get("frame", "world"),
+    )
     return grasp, execution
 
 
-def grasps_to_json(grasps: Sequence[Grasp], executions: Sequence[ExecutionResult | None] | None = None,
-                   meta: dict | None = None) -> str:
+def grasps_to_json(
+    grasps: Sequence[Grasp], executions: Sequence[ExecutionResult | None] | None = None, meta: dict | None = None
+) -> str:
     """The grasps (and executions, index-aligned, None where absent) as a JSON document, one
     grasp per line."""
     executions = list(executions) if executions is not None else [None] * len(grasps)
@@ -169,7 +206,7 @@ def _object_urdf(mesh: trimesh.Trimesh, mass: float) -> str:
     if mesh.is_watertight and mesh.volume > 0:
         inertia = mesh.moment_inertia * (mass / mesh.mass)  # about the centre of mass, world axes
     else:
-        inertia = np.diag(mass * np.sum(mesh.extents ** 2) / 12.0 * np.ones(3))
+        inertia = np.diag(mass * np.sum(mesh.extents**2) / 12.0 * np.ones(3))
     (ixx, ixy, ixz), (_, iyy, iyz), (_, _, izz) = inertia
     xyz = " ".join(f"{v:.9g}" for v in com)
     return f"""<?xml version="1.0"?>
@@ -185,16 +222,21 @@ def _object_urdf(mesh: trimesh.Trimesh, mass: float) -> str:
 """
 
 
-def scene_zip(mesh_world: trimesh.Trimesh, grasps: Sequence[Grasp],
-              executions: Sequence[ExecutionResult | None] | None = None, meta: dict | None = None,
-              mass: float = 0.2) -> bytes:
+def scene_zip(
+    mesh_world: trimesh.Trimesh,
+    grasps: Sequence[Grasp],
+    executions: Sequence[ExecutionResult | None] | None = None,
+    meta: dict | None = None,
+    mass: float = 0.2,
+) -> bytes:
     """A zip (bytes) of the object (OBJ, convex decomposition, URDF), the hands used and
     grasps.json, loadable in pybullet as its README shows. ``mesh_world``: world frame, metres."""
     hands = sorted({g.hand for g in grasps}) or ["barrett"]
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
-        z.writestr("object.obj", trimesh.exchange.obj.export_obj(mesh_world, include_normals=False,
-                                                                  include_texture=False))
+        z.writestr(
+            "object.obj", trimesh.exchange.obj.export_obj(mesh_world, include_normals=False, include_texture=False)
+        )
         z.writestr("object_collision.obj", convex_decomposition(mesh_world).read_bytes())
         z.writestr("object.urdf", _object_urdf(mesh_world, mass))
         for name in hands:
@@ -203,8 +245,14 @@ def scene_zip(mesh_world: trimesh.Trimesh, grasps: Sequence[Grasp],
             if (urdf.parent / "LICENSE.txt").exists():  # the Panda's files come from pybullet_data
                 z.writestr(f"hands/{name}_LICENSE.txt", (urdf.parent / "LICENSE.txt").read_bytes())
             # Mesh files the URDF names (the Panda's), next to it as it expects.
-            for mesh_path in sorted({g.mesh_path for geoms in get_hand(name).model.visuals.values()
-                                     for g in geoms if g.mesh_path is not None}):
+            for mesh_path in sorted(
+                {
+                    g.mesh_path
+                    for geoms in get_hand(name).model.visuals.values()
+                    for g in geoms
+                    if g.mesh_path is not None
+                }
+            ):
                 z.writestr(f"hands/{mesh_path.relative_to(urdf.parent).as_posix()}", mesh_path.read_bytes())
         z.writestr("grasps.json", grasps_to_json(grasps, executions, meta))
         z.writestr("README.txt", _README.format(mass=mass, urdf=get_hand(hands[0]).urdf.name))
@@ -214,9 +262,17 @@ def scene_zip(mesh_world: trimesh.Trimesh, grasps: Sequence[Grasp],
 # ---------------------------------------------------------------------------------------------
 # Headless use (``shapeviewer grasp MESH --hand barrett --out grasps.json``).
 
-def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "barrett", n_grasps: int = 20,
-                   seed: int = 0, on_table: bool = True, budget_seconds: float | None = None,
-                   progress: ProgressFn | None = None) -> list[Grasp]:
+
+def plan_mesh_file(
+    mesh_path: str | Path,
+    out_path: str | Path,
+    hand: str = "barrett",
+    n_grasps: int = 20,
+    seed: int = 0,
+    on_table: bool = True,
+    budget_seconds: float | None = None,
+    progress: ProgressFn | None = None,
+) -> list[Grasp]:
     """Plan grasps on the mesh file ``mesh_path`` (metres, z up) and write them to ``out_path``:
     grasps.json, or the pybullet scene when the name ends in ``.zip``.
 
@@ -231,17 +287,23 @@ def plan_mesh_file(mesh_path: str | Path, out_path: str | Path, hand: str = "bar
     """
     mesh = read_mesh(mesh_path)
     if not mesh.is_watertight:
-        log.warning("%s is not watertight (an open surface): inside and outside are guessed by ray voting, "
-                    "so grasp qualities are approximate", mesh_path)
+        log.warning(
+            "%s is not watertight (an open surface): inside and outside are guessed by ray voting, "
+            "so grasp qualities are approximate",
+            mesh_path,
+        )
     T = np.eye(4)
     if on_table:
         T[2, 3] = -float(mesh.bounds[0, 2])
         mesh.apply_transform(T)
-    grasps = plan_grasps(mesh, hand=hand, n_grasps=n_grasps, seed=seed, budget_seconds=budget_seconds,
-                         progress=progress)
+    grasps = plan_grasps(
+        mesh, hand=hand, n_grasps=n_grasps, seed=seed, budget_seconds=budget_seconds, progress=progress
+    )
     meta = {"source": str(mesh_path), "T_world_mesh": _floats(T), "hand": hand, "seed": seed}
     out_path = Path(out_path)
-    data = scene_zip(mesh, grasps, meta=meta) if out_path.suffix == ".zip" else grasps_to_json(grasps, meta=meta).encode()
+    data = (
+        scene_zip(mesh, grasps, meta=meta) if out_path.suffix == ".zip" else grasps_to_json(grasps, meta=meta).encode()
+    )
     atomic_write(out_path, data)  # a failed or interrupted run leaves no half-written file
     return grasps
 
@@ -276,6 +338,8 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
     centred = pts - pts.mean(axis=0)
     thickness = float(np.ptp(centred @ np.linalg.svd(centred, full_matrices=False)[2][-1])) if len(pts) >= 3 else 0.0
     if thickness < MIN_THICKNESS:
-        raise MeshError(f"{path}: flat ({len(mesh.faces)} triangles, {thickness * 1000:.2f} mm thick); "
-                        "grasps need an object with volume")
+        raise MeshError(
+            f"{path}: flat ({len(mesh.faces)} triangles, {thickness * 1000:.2f} mm thick); "
+            "grasps need an object with volume"
+        )
     return mesh

@@ -30,7 +30,7 @@ class GraspContact:
     normal: np.ndarray
 
     @staticmethod
-    def from_world(c: Contact) -> "GraspContact":
+    def from_world(c: Contact) -> GraspContact:
         return GraspContact(c.link, np.asarray(c.position, float), np.asarray(c.normal, float))
 
 

@@ -22,20 +22,27 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pybullet as p
 import trimesh
 
 from shapeviewer.geometry import centre_of_mass
-from shapeviewer.sim.catalogue import cache_dir
 from shapeviewer.grasp.hands import (
-    Hand, HandBody, get_base_pose, load_hand, palm_pose, set_base_pose, set_joint_positions, set_joints,
+    Hand,
+    HandBody,
+    get_base_pose,
+    load_hand,
+    palm_pose,
+    set_base_pose,
+    set_joint_positions,
+    set_joints,
     set_palm_pose,
 )
+from shapeviewer.sim.catalogue import cache_dir
 
 CONTACT_TOL = 1e-3  # a link within this distance (m) of an obstacle is in contact
 # Closest-point queries look this far (m); anything farther counts as this far, which caps a
@@ -185,9 +192,21 @@ class Decomposition:
         src, dst, log = tmp / "in.obj", tmp / "out.obj", tmp / "log.txt"
         mesh.export(src)
         self.process = subprocess.Popen(
-            [sys.executable, "-c", _VHACD_CHILD, str(src), str(dst), str(log), str(self.path),
-             str(VHACD_RESOLUTION), str(timeout)],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            [
+                sys.executable,
+                "-c",
+                _VHACD_CHILD,
+                str(src),
+                str(dst),
+                str(log),
+                str(self.path),
+                str(VHACD_RESOLUTION),
+                str(timeout),
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         self._tmp = tmp
 
     def wait(self, timeout: float | None = None) -> Path:
@@ -204,9 +223,11 @@ class Decomposition:
             code = self.process.wait(timeout=max(0.0, min(left, left if timeout is None else timeout)))
         except subprocess.TimeoutExpired:
             self.cancel()
-            raise DecompositionError(f"the convex decomposition (V-HACD) did not finish within "
-                                     f"{min(self.timeout, timeout or self.timeout):.0f} s; the mesh may be "
-                                     "degenerate") from None
+            raise DecompositionError(
+                f"the convex decomposition (V-HACD) did not finish within "
+                f"{min(self.timeout, timeout or self.timeout):.0f} s; the mesh may be "
+                "degenerate"
+            ) from None
         except BaseException:  # e.g. KeyboardInterrupt: do not leave the child behind
             self.cancel()
             raise
@@ -224,7 +245,7 @@ class Decomposition:
         if self.process is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
 
-    def __enter__(self) -> "Decomposition":
+    def __enter__(self) -> Decomposition:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -252,8 +273,14 @@ class GraspWorld:
     Use as a context manager (or call :meth:`close`) so that the physics client is released.
     """
 
-    def __init__(self, hand: str | Hand = "barrett", *, table: bool = True, contact_tol: float = CONTACT_TOL,
-                 query_radius: float = QUERY_RADIUS):
+    def __init__(
+        self,
+        hand: str | Hand = "barrett",
+        *,
+        table: bool = True,
+        contact_tol: float = CONTACT_TOL,
+        query_radius: float = QUERY_RADIUS,
+    ):
         self.client = p.connect(p.DIRECT)
         self.contact_tol = contact_tol
         self.query_radius = query_radius
@@ -278,7 +305,7 @@ class GraspWorld:
             p.disconnect(physicsClientId=self.client)
             self.client = -1
 
-    def __enter__(self) -> "GraspWorld":
+    def __enter__(self) -> GraspWorld:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -291,8 +318,16 @@ class GraspWorld:
         """Bodies that stop the hand: the table (if any) and every object."""
         return ([self.table] if self.table is not None else []) + self.objects
 
-    def add_object(self, mesh: trimesh.Trimesh, T_world_obj: np.ndarray | None = None, *, movable: bool = False,
-                   decompose: bool | None = None, mass: float = 0.2, friction: float = 1.0) -> int:
+    def add_object(
+        self,
+        mesh: trimesh.Trimesh,
+        T_world_obj: np.ndarray | None = None,
+        *,
+        movable: bool = False,
+        decompose: bool | None = None,
+        mass: float = 0.2,
+        friction: float = 1.0,
+    ) -> int:
         """Add ``mesh`` (object frame, metres) at ``T_world_obj``; returns the pybullet body id.
 
         ``movable``: a dynamic body of ``mass`` kg with its centre of mass at the mesh's;
@@ -307,15 +342,21 @@ class GraspWorld:
         if movable and not decompose:
             raise ValueError("a movable object needs its convex decomposition")
         if decompose:
-            shape = p.createCollisionShape(p.GEOM_MESH, fileName=str(convex_decomposition(mesh)),
-                                           physicsClientId=self.client)
+            shape = p.createCollisionShape(
+                p.GEOM_MESH, fileName=str(convex_decomposition(mesh)), physicsClientId=self.client
+            )
         else:
-            shape = p.createCollisionShape(p.GEOM_MESH, vertices=np.asarray(mesh.vertices, float).tolist(),
-                                           indices=np.asarray(mesh.faces, int).ravel().tolist(),
-                                           flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.client)
+            shape = p.createCollisionShape(
+                p.GEOM_MESH,
+                vertices=np.asarray(mesh.vertices, float).tolist(),
+                indices=np.asarray(mesh.faces, int).ravel().tolist(),
+                flags=p.GEOM_FORCE_CONCAVE_TRIMESH,
+                physicsClientId=self.client,
+            )
         if movable:
-            body = p.createMultiBody(mass, shape, baseInertialFramePosition=centre_of_mass(mesh).tolist(),
-                                     physicsClientId=self.client)
+            body = p.createMultiBody(
+                mass, shape, baseInertialFramePosition=centre_of_mass(mesh).tolist(), physicsClientId=self.client
+            )
         else:
             body = p.createMultiBody(0.0, shape, physicsClientId=self.client)
         # Mesh shapes get a 1 mm collision margin by default, which would stop fingers short of
@@ -384,8 +425,9 @@ class GraspWorld:
         """Whether any hand link is within ``tol`` (m) of an obstacle (penetrating when 0)."""
         return any(d <= tol for d in self.link_gaps(max(tol, 0.0) + 1e-6).values())
 
-    def contacts(self, bodies: Sequence[int] | None = None, tol: float | None = None,
-                 max_per_link: int = MAX_PER_LINK) -> list[Contact]:
+    def contacts(
+        self, bodies: Sequence[int] | None = None, tol: float | None = None, max_per_link: int = MAX_PER_LINK
+    ) -> list[Contact]:
         """Hand contacts with ``bodies`` (default: the objects, not the table) within ``tol`` (m).
 
         pybullet gives one row per pair of convex parts (per triangle for a static concave mesh),
@@ -453,8 +495,9 @@ class GraspWorld:
         dofs, joints = hb.dofs.copy(), hb.joints.copy()
         lower, upper = hand.joint_limits
         joint_pos = {n: i for i, n in enumerate(hand.joint_names)}
-        coupled = {f.name: [(joint_pos[c.joint], c.gain) for c in hand.coupling if c.dof == f.dof]
-                   for f in hand.fingers}
+        coupled = {
+            f.name: [(joint_pos[c.joint], c.gain) for c in hand.coupling if c.dof == f.dof] for f in hand.fingers
+        }
         phase = {f.name: "coupled" for f in hand.fingers}
         blocked = {f.name: False for f in hand.fingers}
         for f in hand.fingers:
@@ -501,5 +544,6 @@ class GraspWorld:
                     phase[f.name] = "done"
             set_joint_positions(hb, joints)
         hb.dofs = dofs
-        return CloseResult(dofs.copy(), hb.joints.copy(), tuple(blocked[f.name] for f in hand.fingers),
-                           self.contacts(), queries)
+        return CloseResult(
+            dofs.copy(), hb.joints.copy(), tuple(blocked[f.name] for f in hand.fingers), self.contacts(), queries
+        )

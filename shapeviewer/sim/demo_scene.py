@@ -22,17 +22,30 @@ from pybullet_utils.bullet_client import BulletClient
 from ..camera import Intrinsics, KinectNoise, RaycastRenderer, backproject, look_at, transform_points
 from ..capture import Capture, SceneObject
 from ..geometry import pose_to_pq
-from .catalogue import catalogue, load_mesh
 from ..grasp.hands import get_base_pose
 from ..grasp.world import convex_decomposition
+from .catalogue import catalogue, load_mesh
 
 # YCB objects that look like a tabletop and stand (or lie) stably; the bowl, mugs and cups are
 # concave and show why completion needs more than a convex hull.
 TABLETOP_YCB = (
-    "ycb/002_master_chef_can", "ycb/003_cracker_box", "ycb/004_sugar_box", "ycb/005_tomato_soup_can",
-    "ycb/006_mustard_bottle", "ycb/010_potted_meat_can", "ycb/011_banana", "ycb/013_apple",
-    "ycb/016_pear", "ycb/019_pitcher_base", "ycb/021_bleach_cleanser", "ycb/024_bowl", "ycb/025_mug",
-    "ycb/036_wood_block", "ycb/061_foam_brick", "ycb/065-h_cups", "ycb/077_rubiks_cube",
+    "ycb/002_master_chef_can",
+    "ycb/003_cracker_box",
+    "ycb/004_sugar_box",
+    "ycb/005_tomato_soup_can",
+    "ycb/006_mustard_bottle",
+    "ycb/010_potted_meat_can",
+    "ycb/011_banana",
+    "ycb/013_apple",
+    "ycb/016_pear",
+    "ycb/019_pitcher_base",
+    "ycb/021_bleach_cleanser",
+    "ycb/024_bowl",
+    "ycb/025_mug",
+    "ycb/036_wood_block",
+    "ycb/061_foam_brick",
+    "ycb/065-h_cups",
+    "ycb/077_rubiks_cube",
 )
 SIZE_RANGE = (0.05, 0.25)  # largest side (m): fits a hand
 MIN_THICKNESS = 0.03  # smallest side (m): flat objects show the camera little more than a sliver
@@ -56,17 +69,35 @@ CAMERA_TRIES = 8
 TABLE_RGB = (150, 138, 120)  # a neutral grey-brown table top
 # The real colours of the curated YCB objects (roughly); the rest get a palette colour.
 YCB_RGB = {
-    "ycb/002_master_chef_can": (40, 95, 190), "ycb/003_cracker_box": (200, 45, 40),
-    "ycb/004_sugar_box": (235, 205, 70), "ycb/005_tomato_soup_can": (190, 40, 40),
-    "ycb/006_mustard_bottle": (235, 190, 40), "ycb/010_potted_meat_can": (45, 80, 165),
-    "ycb/011_banana": (240, 205, 60), "ycb/013_apple": (185, 30, 35), "ycb/016_pear": (175, 190, 60),
-    "ycb/019_pitcher_base": (50, 110, 200), "ycb/021_bleach_cleanser": (230, 230, 225),
-    "ycb/024_bowl": (200, 50, 40), "ycb/025_mug": (200, 50, 40), "ycb/036_wood_block": (215, 175, 115),
-    "ycb/061_foam_brick": (200, 60, 50), "ycb/065-h_cups": (60, 150, 75), "ycb/077_rubiks_cube": (60, 150, 75),
+    "ycb/002_master_chef_can": (40, 95, 190),
+    "ycb/003_cracker_box": (200, 45, 40),
+    "ycb/004_sugar_box": (235, 205, 70),
+    "ycb/005_tomato_soup_can": (190, 40, 40),
+    "ycb/006_mustard_bottle": (235, 190, 40),
+    "ycb/010_potted_meat_can": (45, 80, 165),
+    "ycb/011_banana": (240, 205, 60),
+    "ycb/013_apple": (185, 30, 35),
+    "ycb/016_pear": (175, 190, 60),
+    "ycb/019_pitcher_base": (50, 110, 200),
+    "ycb/021_bleach_cleanser": (230, 230, 225),
+    "ycb/024_bowl": (200, 50, 40),
+    "ycb/025_mug": (200, 50, 40),
+    "ycb/036_wood_block": (215, 175, 115),
+    "ycb/061_foam_brick": (200, 60, 50),
+    "ycb/065-h_cups": (60, 150, 75),
+    "ycb/077_rubiks_cube": (60, 150, 75),
 }
 PALETTE_RGB = (  # distinct, plausible object colours
-    (200, 45, 40), (40, 95, 190), (235, 190, 40), (60, 150, 75), (235, 120, 30), (140, 75, 165),
-    (35, 155, 160), (225, 220, 205), (230, 120, 170), (70, 70, 75),
+    (200, 45, 40),
+    (40, 95, 190),
+    (235, 190, 40),
+    (60, 150, 75),
+    (235, 120, 30),
+    (140, 75, 165),
+    (35, 155, 160),
+    (225, 220, 205),
+    (230, 120, 170),
+    (70, 70, 75),
 )
 MIN_COLOUR_DISTANCE = 70  # RGB distance that tells two objects (or an object and the table) apart
 AMBIENT = 0.35  # share of light that does not depend on the surface normal
@@ -85,6 +116,7 @@ def tabletop_candidates() -> tuple[list[str], list[str]]:
     Both keep to objects that fit a hand (largest side in ``SIZE_RANGE``) and are not flat
     (smallest side at least ``MIN_THICKNESS``).
     """
+
     def fits(extents: tuple) -> bool:
         return SIZE_RANGE[0] <= max(extents) <= SIZE_RANGE[1] and min(extents) >= MIN_THICKNESS
 
@@ -164,8 +196,9 @@ def sample_layout(rng: np.random.Generator, meshes: list[trimesh.Trimesh]) -> li
     return starts
 
 
-def _place_circles(rng: np.random.Generator, radii: list[float], area: np.ndarray, gap: float,
-                   tries: int = 200) -> list[np.ndarray] | None:
+def _place_circles(
+    rng: np.random.Generator, radii: list[float], area: np.ndarray, gap: float, tries: int = 200
+) -> list[np.ndarray] | None:
     """Centres (x, y) of circles inside ``area`` (centred at the origin) at least ``gap`` apart, or None."""
     spots: list[np.ndarray] = []
     for r in radii:
@@ -188,6 +221,7 @@ def convex_parts(meshes: list[trimesh.Trimesh]) -> list[Path | None]:
     are decomposed (cached on disk, shared with the grasp world). Each decomposition runs in its
     own process, so threads run the uncached ones side by side.
     """
+
     def parts(mesh: trimesh.Trimesh) -> Path | None:
         return None if mesh.volume / mesh.convex_hull.volume >= CONVEX_ENOUGH else convex_decomposition(mesh)
 
@@ -210,8 +244,12 @@ def _add_body(client: BulletClient, shape: int, mesh: trimesh.Trimesh, T_world_o
     """
     position, quaternion = pose_to_pq(T_world_obj)
     body = client.createMultiBody(
-        baseMass=DENSITY * mesh.volume, baseCollisionShapeIndex=shape,
-        basePosition=position, baseOrientation=quaternion, baseInertialFramePosition=mesh.center_mass.tolist())
+        baseMass=DENSITY * mesh.volume,
+        baseCollisionShapeIndex=shape,
+        basePosition=position,
+        baseOrientation=quaternion,
+        baseInertialFramePosition=mesh.center_mass.tolist(),
+    )
     # A little rolling and spinning friction lets round objects come to rest.
     client.changeDynamics(body, -1, lateralFriction=0.8, rollingFriction=0.001, spinningFriction=0.001)
     return body
@@ -233,7 +271,7 @@ def _well_placed(client: BulletClient, bodies: list[int]) -> bool:
     for i, a in enumerate(bodies):
         if np.any(np.abs(client.getBasePositionAndOrientation(a)[0][:2]) > np.array(SPAWN_AREA)):
             return False
-        if any(client.getClosestPoints(a, b, MIN_GAP) for b in bodies[i + 1:]):
+        if any(client.getClosestPoints(a, b, MIN_GAP) for b in bodies[i + 1 :]):
             return False
     return True
 
@@ -242,8 +280,13 @@ def _well_placed(client: BulletClient, bodies: list[int]) -> bool:
 # The simulated Kinect
 
 
-def capture_scene(objects: list[SceneObject], seed: int = 0, intrinsics: Intrinsics = Intrinsics.kinect(),
-                  noise: KinectNoise | None = KinectNoise(), distance: float | None = None) -> Capture:
+def capture_scene(
+    objects: list[SceneObject],
+    seed: int = 0,
+    intrinsics: Intrinsics = Intrinsics.kinect(),
+    noise: KinectNoise | None = KinectNoise(),
+    distance: float | None = None,
+) -> Capture:
     """A simulated Kinect capture of objects on the table (z = 0).
 
     The camera looks down at the objects' centre from ``CAMERA_ELEVATION_DEG`` below horizontal,
@@ -260,8 +303,9 @@ def capture_scene(objects: list[SceneObject], seed: int = 0, intrinsics: Intrins
     if not objects:
         raise ValueError("capture_scene needs at least one object to look at")
     rng = np.random.default_rng([seed, _CAMERA_STREAM])
-    meshes = [trimesh.Trimesh(transform_points(o.T_world_obj, o.mesh.vertices), o.mesh.faces, process=False)
-              for o in objects]
+    meshes = [
+        trimesh.Trimesh(transform_points(o.T_world_obj, o.mesh.vertices), o.mesh.faces, process=False) for o in objects
+    ]
     vertices = np.concatenate([m.vertices for m in meshes])
     target = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
     # Geometry 0 is the table, geometry i + 1 is object i.
@@ -276,8 +320,15 @@ def capture_scene(objects: list[SceneObject], seed: int = 0, intrinsics: Intrins
     albedo = np.concatenate([[TABLE_RGB], object_colours([o.name for o in objects])])
     colors = _shade(gid, normals, albedo, intrinsics, T_world_cam, target)
     colors[~valid] = 0
-    return Capture(points_cam=points, colors=colors, intrinsics=intrinsics, T_world_cam=T_world_cam,
-                   source=f"default(seed={seed})", objects=list(objects), labels=labels)
+    return Capture(
+        points_cam=points,
+        colors=colors,
+        intrinsics=intrinsics,
+        T_world_cam=T_world_cam,
+        source=f"default(seed={seed})",
+        objects=list(objects),
+        labels=labels,
+    )
 
 
 def default_scene(seed: int = 0) -> Capture:
@@ -293,8 +344,15 @@ def table_mesh(centre: np.ndarray, half_size: float = TABLE_HALF_SIZE) -> trimes
     return trimesh.Trimesh(vertices, [[0, 1, 2], [0, 2, 3]], process=False)
 
 
-def _choose_camera(rng: np.random.Generator, renderer: RaycastRenderer, vertices: np.ndarray,
-                   target: np.ndarray, intr: Intrinsics, distance: float | None, n_objects: int) -> np.ndarray:
+def _choose_camera(
+    rng: np.random.Generator,
+    renderer: RaycastRenderer,
+    vertices: np.ndarray,
+    target: np.ndarray,
+    intr: Intrinsics,
+    distance: float | None,
+    n_objects: int,
+) -> np.ndarray:
     """``T_world_cam`` of a seeded view in which every object shows at least ``MIN_VISIBLE_PX`` pixels.
 
     Views where a tall object hides another are re-drawn (up to ``CAMERA_TRIES``); the view whose
@@ -305,8 +363,9 @@ def _choose_camera(rng: np.random.Generator, renderer: RaycastRenderer, vertices
         elevation = np.radians(rng.uniform(*CAMERA_ELEVATION_DEG))
         azimuth = np.radians(rng.uniform(*CAMERA_AZIMUTH_DEG))
         d = rng.uniform(*CAMERA_DISTANCE) if distance is None else distance
-        direction = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
-                              np.sin(elevation)])
+        direction = np.array(
+            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+        )
         T = look_at(target + d * direction, target)
         while distance is None and not _in_image(vertices, T, intr) and d < 3.0:
             d *= 1.05
@@ -348,8 +407,14 @@ def object_colours(names: list[str]) -> np.ndarray:
     return np.array([colours[i] for i in range(len(names))], dtype=np.uint8).reshape(-1, 3)
 
 
-def _shade(gid: np.ndarray, normals_world: np.ndarray, albedo_rgb: np.ndarray, intr: Intrinsics,
-           T_world_cam: np.ndarray, target: np.ndarray) -> np.ndarray:
+def _shade(
+    gid: np.ndarray,
+    normals_world: np.ndarray,
+    albedo_rgb: np.ndarray,
+    intr: Intrinsics,
+    T_world_cam: np.ndarray,
+    target: np.ndarray,
+) -> np.ndarray:
     """uint8 (H, W, 3) colours: the albedo of each pixel's geometry (``albedo_rgb[gid]``) times
     ambient plus Lambertian light; black where nothing was hit.
 

@@ -31,10 +31,20 @@ MIN_FACES, MAX_FACES = 1000, 30000
 
 # Largest bounding-box side (metres) each family is drawn to: the documented size ranges.
 SIZE_RANGE: dict[str, tuple[float, float]] = {
-    "mug": (0.07, 0.14), "cup": (0.07, 0.15), "bowl": (0.10, 0.22), "plate": (0.15, 0.26),
-    "bottle": (0.15, 0.32), "can": (0.05, 0.20), "box": (0.05, 0.30), "spray_bottle": (0.20, 0.30),
-    "drill": (0.15, 0.25), "banana": (0.15, 0.22), "pitcher": (0.15, 0.25), "jar": (0.08, 0.16),
-    "fruit": (0.06, 0.11), "tool": (0.15, 0.30),
+    "mug": (0.07, 0.14),
+    "cup": (0.07, 0.15),
+    "bowl": (0.10, 0.22),
+    "plate": (0.15, 0.26),
+    "bottle": (0.15, 0.32),
+    "can": (0.05, 0.20),
+    "box": (0.05, 0.30),
+    "spray_bottle": (0.20, 0.30),
+    "drill": (0.15, 0.25),
+    "banana": (0.15, 0.22),
+    "pitcher": (0.15, 0.25),
+    "jar": (0.08, 0.16),
+    "fruit": (0.06, 0.11),
+    "tool": (0.15, 0.30),
 }
 
 Array = np.ndarray
@@ -102,22 +112,29 @@ def _rbox(size: tuple[float, float, float], r: float, segments: int = 24) -> mf.
     """A box of ``size`` centred at the origin with edges rounded to radius ``r``."""
     h = np.maximum(np.asarray(size, dtype=np.float64) / 2 - r, 1e-5)
     s = mf.Manifold.sphere(r, segments)
-    return mf.Manifold.batch_hull([s.translate((x, y, z)) for x in (-h[0], h[0])
-                                   for y in (-h[1], h[1]) for z in (-h[2], h[2])])
+    return mf.Manifold.batch_hull(
+        [s.translate((x, y, z)) for x in (-h[0], h[0]) for y in (-h[1], h[1]) for z in (-h[2], h[2])]
+    )
 
 
-def _tube(points: Array, radii: Array | float, segments: int = 24,
-          squash: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> mf.Manifold:
+def _tube(
+    points: Array, radii: Array | float, segments: int = 24, squash: tuple[float, float, float] = (1.0, 1.0, 1.0)
+) -> mf.Manifold:
     """A swept round bar: the union of hulls of consecutive balls (radius per point, optionally squashed)."""
     pts = np.asarray(points, dtype=np.float64)
     rad = np.broadcast_to(np.asarray(radii, dtype=np.float64), len(pts))
     balls = [mf.Manifold.sphere(float(r), segments).scale(squash).translate(tuple(p)) for p, r in zip(pts, rad)]
-    return mf.Manifold.batch_boolean([mf.Manifold.batch_hull([a, b]) for a, b in pairwise(balls)],
-                                     mf.OpType.Add)
+    return mf.Manifold.batch_boolean([mf.Manifold.batch_hull([a, b]) for a, b in pairwise(balls)], mf.OpType.Add)
 
 
-def _sweep(path: Array, radii: Array | float, normal: Array, around: int = 24, squash: float = 1.0,
-           round_ends: tuple[bool, bool] = (True, True)) -> mf.Manifold:
+def _sweep(
+    path: Array,
+    radii: Array | float,
+    normal: Array,
+    around: int = 24,
+    squash: float = 1.0,
+    round_ends: tuple[bool, bool] = (True, True),
+) -> mf.Manifold:
     """A tube along a planar ``path`` (N, 3) with plane normal ``normal``: elliptical sections of radius
     ``radii`` in the plane and ``squash * radii`` along the normal; ends are half-ellipsoids or flat.
 
@@ -135,8 +152,11 @@ def _sweep(path: Array, radii: Array | float, normal: Array, around: int = 24, s
             a = np.linspace(0, np.pi / 2, 7)[1:-1]
             rings = P[end] + sign * T[end] * (R[end] * np.sin(a))[:, None]
             rr, tt = R[end] * np.cos(a), np.repeat(T[end][None], len(a), 0)
-            P, R, T = ((np.vstack([rings[::-1], P]), np.concatenate([rr[::-1], R]), np.vstack([tt, T])) if end == 0
-                       else (np.vstack([P, rings]), np.concatenate([R, rr]), np.vstack([T, tt])))
+            P, R, T = (
+                (np.vstack([rings[::-1], P]), np.concatenate([rr[::-1], R]), np.vstack([tt, T]))
+                if end == 0
+                else (np.vstack([P, rings]), np.concatenate([R, rr]), np.vstack([T, tt]))
+            )
     e1 = np.cross(T, nrm)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     th = np.linspace(0, 2 * np.pi, around, endpoint=False)
@@ -147,8 +167,10 @@ def _sweep(path: Array, radii: Array | float, normal: Array, around: int = 24, s
     k = (j + 1) % around
     faces = [np.stack([i * around + j, i * around + k, (i + 1) * around + k], 1) for i in range(n - 1)]
     faces += [np.stack([i * around + j, (i + 1) * around + k, (i + 1) * around + j], 1) for i in range(n - 1)]
-    faces += [np.stack([np.full(around, n * around), k, j], 1),
-              np.stack([np.full(around, n * around + 1), (n - 1) * around + j, (n - 1) * around + k], 1)]
+    faces += [
+        np.stack([np.full(around, n * around), k, j], 1),
+        np.stack([np.full(around, n * around + 1), (n - 1) * around + j, (n - 1) * around + k], 1),
+    ]
     V, F = np.vstack([V, poles]), np.vstack(faces)
     if np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() < 0:
         F = F[:, ::-1]
@@ -177,8 +199,16 @@ def _fillet(corners: Array, radius: Array | float, n: int = 8) -> Array:
     return np.asarray(out)
 
 
-def _handle(radius_at: Callable[[float], float], z_lo: float, z_hi: float, reach: float, bar: float,
-            wall: float, rng: np.random.Generator, side: float = 1.0) -> mf.Manifold:
+def _handle(
+    radius_at: Callable[[float], float],
+    z_lo: float,
+    z_hi: float,
+    reach: float,
+    bar: float,
+    wall: float,
+    rng: np.random.Generator,
+    side: float = 1.0,
+) -> mf.Manifold:
     """A D- or C-shaped handle in the x-z plane whose two ends sink into a wall of outer radius ``radius_at(z)``.
 
     ``reach`` is how far the loop stands off the wall, ``bar`` the bar radius; ``side`` +1 puts it on +x.
@@ -206,6 +236,7 @@ def _radial_noise(m: mf.Manifold, rng: np.random.Generator, amp: float, waves: i
         off = np.asarray(v) - c
         u = off / np.maximum(np.linalg.norm(off, axis=1, keepdims=True), 1e-12)
         return c + off * (1 + (a * np.sin(u @ d.T * freq + phase)).sum(1))[:, None]
+
     return m.warp_batch(warp)
 
 
@@ -284,8 +315,9 @@ def bowl(rng: np.random.Generator) -> trimesh.Trimesh:
     foot = rng.random() < 0.5
     hf = rng.uniform(0.003, 0.008) if foot else 0.0
     phi = np.linspace(0, np.pi / 2, 24)
-    outer = np.stack([r0 + (r - r0) * np.sin(phi) ** rng.uniform(0.8, 1.2),
-                      (h - hf) * (1 - np.cos(phi) ** rng.uniform(0.8, 1.4))], 1)
+    outer = np.stack(
+        [r0 + (r - r0) * np.sin(phi) ** rng.uniform(0.8, 1.2), (h - hf) * (1 - np.cos(phi) ** rng.uniform(0.8, 1.4))], 1
+    )
     wall_cs, _ = _vessel(outer, wall, wall)
     if foot:
         wall_cs = _foot(wall_cs, r0 * rng.uniform(0.8, 1.1), rng.uniform(0.003, 0.006), hf)
@@ -293,7 +325,8 @@ def bowl(rng: np.random.Generator) -> trimesh.Trimesh:
 
 
 def plate(rng: np.random.Generator) -> trimesh.Trimesh:
-    """Shallow dish: a flat well, a rising cavetto and a sloped rim; diameter 15-26 cm, height 1.5-3 cm, 4-6 mm thick."""
+    """Shallow dish: a flat well, a rising cavetto and a sloped rim; diameter 15-26 cm, height 1.5-3 cm,
+    4-6 mm thick."""
     r, h, t = rng.uniform(0.075, 0.13), rng.uniform(0.015, 0.03), rng.uniform(0.004, 0.006)
     foot = rng.random() < 0.5
     hf = rng.uniform(0.002, 0.004) if foot else 0.0
@@ -311,8 +344,9 @@ def plate(rng: np.random.Generator) -> trimesh.Trimesh:
     return _finish(_revolve(wall_cs, 96))
 
 
-def _bottle_profile(rng: np.random.Generator, h: float, r_body: float, r_neck: float, neck: float,
-                    cap: float, r_cap: float) -> tuple[Array, float, float]:
+def _bottle_profile(
+    rng: np.random.Generator, h: float, r_body: float, r_neck: float, neck: float, cap: float, r_cap: float
+) -> tuple[Array, float, float]:
     """Closed bottle profile (r, z) from the bottom centre to the top centre, plus the shoulder's z range."""
     shoulder = (h - neck - cap) * rng.uniform(0.15, 0.35)
     z_sh = h - cap - neck - shoulder
@@ -332,6 +366,7 @@ def _bottle_profile(rng: np.random.Generator, h: float, r_body: float, r_neck: f
 def _reshape(m: mf.Manifold, sy: float, square: float, z0: float, z1: float) -> mf.Manifold:
     """Turn a round body into an oval (y scaled by ``sy``) and/or a rounded square (superellipse exponent
     ``square``; 2 keeps it round) below z0, blending back to the round shape at z1 (necks stay round)."""
+
     def warp(v: Array) -> Array:
         v = np.array(v, dtype=np.float64)
         s = np.clip((v[:, 2] - z0) / max(z1 - z0, 1e-9), 0, 1)
@@ -342,6 +377,7 @@ def _reshape(m: mf.Manifold, sy: float, square: float, z0: float, z1: float) -> 
         v[:, 0] *= k
         v[:, 1] *= k * (1 + (sy - 1) * w)
         return v
+
     return m.warp_batch(warp)
 
 
@@ -350,8 +386,9 @@ def bottle(rng: np.random.Generator) -> trimesh.Trimesh:
     h = rng.uniform(0.15, 0.32)
     r_cap = rng.uniform(0.012, 0.022)
     r_body = rng.uniform(max(r_cap + 0.01, 0.025), min(0.05, 0.2 * h))
-    prof, z0, z1 = _bottle_profile(rng, h, r_body, r_cap - rng.uniform(0.001, 0.003), rng.uniform(0.005, 0.04),
-                                   rng.uniform(0.015, 0.03), r_cap)
+    prof, z0, z1 = _bottle_profile(
+        rng, h, r_body, r_cap - rng.uniform(0.001, 0.003), rng.uniform(0.005, 0.04), rng.uniform(0.015, 0.03), r_cap
+    )
     m = _revolve(_solid_profile(prof), 96)
     variant = rng.choice(["round", "oval", "square"])
     if variant != "round":
@@ -368,9 +405,13 @@ def can(rng: np.random.Generator) -> trimesh.Trimesh:
     zs = np.linspace(neck, h - neck, 24)
     ribs = rng.choice([0.0, rng.uniform(0.0005, 0.0012)])
     body = np.stack([r - ribs * np.sin(np.pi * rng.integers(3, 9) * (zs - neck) / (h - 2 * neck)) ** 2, zs], 1)
-    prof = np.vstack([[[0.0, dome], [r - n - 0.003, 0.0025], [r - n - 0.0005, 0.0], [r - n + 0.0005, 0.0]], body,
-                      [[r - n + 0.0005, h - e], [r - n + 0.0005, h], [r - n - w, h], [r - n - w, h - lid],
-                       [0.0, h - lid]]])
+    prof = np.vstack(
+        [
+            [[0.0, dome], [r - n - 0.003, 0.0025], [r - n - 0.0005, 0.0], [r - n + 0.0005, 0.0]],
+            body,
+            [[r - n + 0.0005, h - e], [r - n + 0.0005, h], [r - n - w, h], [r - n - w, h - lid], [0.0, h - lid]],
+        ]
+    )
     return _finish(_revolve(_round(_solid_profile(prof), 0.0006), 72))
 
 
@@ -416,8 +457,12 @@ def spray_bottle(rng: np.random.Generator) -> trimesh.Trimesh:
     nozzle = nozzle.translate((front - 0.003, 0, z_shroud + rng.uniform(-0.3, 0.3) * (shroud_h / 2 - nr)))
     tl = col_h * rng.uniform(0.6, 0.9)
     tab = _rbox((tab_x, cw * 0.7, 0.006), 0.0025, 12)
-    trigger = mf.Manifold.batch_hull([tab.translate((x0, 0, zt + col_h + 0.004)),
-                                      tab.translate((x0 + rng.uniform(0.0, 0.01), 0, zt + col_h - tl + 0.003))])
+    trigger = mf.Manifold.batch_hull(
+        [
+            tab.translate((x0, 0, zt + col_h + 0.004)),
+            tab.translate((x0 + rng.uniform(0.0, 0.01), 0, zt + col_h - tl + 0.003)),
+        ]
+    )
     return _finish(m + head + nozzle + trigger)
 
 
@@ -443,8 +488,20 @@ def drill(rng: np.random.Generator) -> trimesh.Trimesh:
     body = mf.Manifold.batch_hull([rear, barrel])
     rc = front_r * rng.uniform(0.55, 0.75)
     tip, step = rc * rng.uniform(0.45, 0.7), rng.uniform(0.3, 0.5)
-    chuck = _revolve(_solid_profile([[0, 0], [rc, 0], [rc, step * chuck_len], [rc * 0.9, (step + 0.05) * chuck_len],
-                                     [rc * 0.9, 0.8 * chuck_len], [tip, chuck_len], [0, chuck_len]]), 48)
+    chuck = _revolve(
+        _solid_profile(
+            [
+                [0, 0],
+                [rc, 0],
+                [rc, step * chuck_len],
+                [rc * 0.9, (step + 0.05) * chuck_len],
+                [rc * 0.9, 0.8 * chuck_len],
+                [tip, chuck_len],
+                [0, chuck_len],
+            ]
+        ),
+        48,
+    )
     chuck = chuck.rotate((0, 90, 0))
     chuck = chuck.translate((x_rear + body_len - 0.002, 0, 0))
     trigger = _rbox((0.012, 0.012, rng.uniform(0.02, 0.03)), 0.004, 12).translate((g1[0] + rg * 0.9, 0, g1[2] - 0.012))
@@ -476,6 +533,7 @@ def banana(rng: np.random.Generator) -> trimesh.Trimesh:
         v[:, :2] = centre[:2] + u * (radius + lr * k)[:, None]
         v[:, 2] = lz * k
         return v
+
     size = rng.uniform(0.15, 0.22)
     return _finish(m.warp_batch(ridges), size)
 
@@ -497,13 +555,16 @@ def pitcher(rng: np.random.Generator) -> trimesh.Trimesh:
         v = np.array(v, dtype=np.float64)
         s = np.clip((v[:, 2] - (h - spout_h)) / spout_h, 0, 1) ** 2
         ang = np.arctan2(v[:, 1], v[:, 0])
-        grow = 1 + push * s * np.exp(-(ang / width) ** 2) / np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-9)
+        grow = 1 + push * s * np.exp(-((ang / width) ** 2)) / np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-9)
         v[:, 0] *= grow
         v[:, 1] *= grow
         return v
+
     bar = rng.uniform(0.006, 0.009)
     z_hi = h - bar - rng.uniform(0.008, 0.025)
-    handle = _handle(_radius_at(outer), rng.uniform(0.2, 0.45) * h, z_hi, rng.uniform(0.025, 0.04), bar, wall, rng, -1.0)
+    handle = _handle(
+        _radius_at(outer), rng.uniform(0.2, 0.45) * h, z_hi, rng.uniform(0.025, 0.04), bar, wall, rng, -1.0
+    )
     return _finish(body.warp_batch(spout) + (handle - _revolve(cavity, 96)))
 
 
@@ -519,9 +580,14 @@ def jar(rng: np.random.Generator) -> trimesh.Trimesh:
     f = rng.uniform(0.003, 0.01)
     a = np.linspace(-np.pi / 2, 0, 6)
     s = np.linspace(0, 1, 8)
-    prof = np.vstack([[[0.0, 0.0]], np.stack([r - f + f * np.cos(a), f + f * np.sin(a)], 1),
-                      np.stack([rn + (r - rn) * np.cos(np.pi / 2 * s), z_sh + shoulder * s], 1),
-                      [[rn, h - lid], [rl, h - lid], [rl, h], [0.0, h]]])
+    prof = np.vstack(
+        [
+            [[0.0, 0.0]],
+            np.stack([r - f + f * np.cos(a), f + f * np.sin(a)], 1),
+            np.stack([rn + (r - rn) * np.cos(np.pi / 2 * s), z_sh + shoulder * s], 1),
+            [[rn, h - lid], [rl, h - lid], [rl, h], [0.0, h]],
+        ]
+    )
     cs = _round(_solid_profile(prof), 0.0015)
     if rng.random() < 0.6:  # grip grooves on the lid
         g = mf.CrossSection.circle(0.0008, 8)
@@ -547,11 +613,12 @@ def fruit(rng: np.random.Generator) -> trimesh.Trimesh:
             v[:, 1:] *= (1 - 0.45 * e)[:, None]
             v[:, 0] *= 1 + tip * e
             return v
+
         m = m.warp_batch(pinch)
         size = rng.uniform(0.07, 0.10)
     elif kind == "apple":
         rho = 1 + rng.uniform(0.03, 0.12) * -np.cos(phi)
-        dip = rng.uniform(0.1, 0.25) * np.exp(-((np.pi - phi) / 0.35) ** 2) + 0.08 * np.exp(-(phi / 0.3) ** 2)
+        dip = rng.uniform(0.1, 0.25) * np.exp(-(((np.pi - phi) / 0.35) ** 2)) + 0.08 * np.exp(-((phi / 0.3) ** 2))
         zp = -rho * np.cos(phi) - dip * np.sign(-np.cos(phi))
         prof = np.stack([rho * np.sin(phi), zp], 1)
         prof[[0, -1], 0] = 0.0
@@ -599,6 +666,7 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
             k = 1 + flutes * np.cos(6 * np.arctan2(v[:, 1], v[:, 0]))
             v[:, :2] *= k[:, None]
             return v
+
         shaft = mf.Manifold.cylinder(1.0 - hlen, sr, sr, 24).translate((0, 0, hlen - 0.01))
         tip = mf.Manifold.cylinder(0.04, sr, sr * 0.3, 24).scale((1.6, 0.35, 1)).translate((0, 0, 0.99))
         m = (hnd.warp_batch(flute) + shaft + tip).rotate((0, 90, 0))
@@ -614,9 +682,20 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
 
 
 FAMILIES: dict[str, Callable[[np.random.Generator], trimesh.Trimesh]] = {
-    "mug": mug, "cup": cup, "bowl": bowl, "plate": plate, "bottle": bottle, "can": can, "box": box,
-    "spray_bottle": spray_bottle, "drill": drill, "banana": banana, "pitcher": pitcher, "jar": jar,
-    "fruit": fruit, "tool": tool,
+    "mug": mug,
+    "cup": cup,
+    "bowl": bowl,
+    "plate": plate,
+    "bottle": bottle,
+    "can": can,
+    "box": box,
+    "spray_bottle": spray_bottle,
+    "drill": drill,
+    "banana": banana,
+    "pitcher": pitcher,
+    "jar": jar,
+    "fruit": fruit,
+    "tool": tool,
 }
 KINDS: tuple[str, ...] = tuple(FAMILIES)
 

@@ -22,9 +22,9 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from . import catalogue
 from ..camera import Intrinsics, RaycastRenderer, backproject, look_at, noise_model, transform_points
 from ..capture import Capture
+from . import catalogue
 
 ELEVATION_DEG = (20.0, 70.0)  # camera above the table plane, seen from the target
 DISTANCE = (0.4, 1.2)  # metres from the camera to the target's centre
@@ -111,8 +111,11 @@ def _resting_pose(name: str, rng: np.random.Generator, xy: np.ndarray, stable: b
     Rz[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
     out = Rz @ pose
     v = transform_points(out, centred_mesh(name).vertices)
-    out[:3, 3] += [xy[0] - (v[:, 0].min() + v[:, 0].max()) / 2, xy[1] - (v[:, 1].min() + v[:, 1].max()) / 2,
-                   -v[:, 2].min()]
+    out[:3, 3] += [
+        xy[0] - (v[:, 0].min() + v[:, 0].max()) / 2,
+        xy[1] - (v[:, 1].min() + v[:, 1].max()) / 2,
+        -v[:, 2].min(),
+    ]
     return out
 
 
@@ -122,8 +125,15 @@ def _footprint_radius(name: str, T_world_obj: np.ndarray) -> float:
     return float(np.linalg.norm(v - (v.min(0) + v.max(0)) / 2, axis=1).max())
 
 
-def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | None = None,
-                         neighbour_pool: list[str] | None = None, tries: int = 4) -> TabletopView | None:
+def render_tabletop_view(
+    name: str,
+    view: int,
+    *,
+    seed: int = 0,
+    sensor: str | None = None,
+    neighbour_pool: list[str] | None = None,
+    tries: int = 4,
+) -> TabletopView | None:
     """Render and segment view ``view`` of ``name`` resting on a table; None if no usable view came out.
 
     Args:
@@ -135,16 +145,17 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
             of the target's split, so holdout models stand among holdout models).
         tries: camera/layout draws before giving up (a neighbour may hide the target).
     """
-    from .demo_scene import table_mesh
     from ..segment import SegmentationError, segment_scene
+    from .demo_scene import table_mesh
 
     rng = np.random.default_rng([seed, catalogue.stable_percent(name), len(name), int(view), 11])
     sensor = sensor or SENSORS[int(rng.integers(len(SENSORS)))]
     intr = sensor_intrinsics(sensor)
     if neighbour_pool is None:
         split = catalogue.model_split(name)
-        neighbour_pool = [e.name for e in catalogue.catalogue() if e.split == split and e.name != name
-                          and max(e.extents) <= 0.3]
+        neighbour_pool = [
+            e.name for e in catalogue.catalogue() if e.split == split and e.name != name and max(e.extents) <= 0.3
+        ]
     for _ in range(tries):
         T_target = _resting_pose(name, rng, np.zeros(2))
         r_target = _footprint_radius(name, T_target)
@@ -168,8 +179,9 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
         meshes_world = [centred_mesh(n).copy().apply_transform(T) for n, T in zip(names, poses)]
         centre = (meshes_world[0].bounds[0] + meshes_world[0].bounds[1]) / 2
         distance = rng.uniform(*DISTANCE)
-        eye = centre + distance * np.array([np.cos(elevation) * toward_camera[0],
-                                            np.cos(elevation) * toward_camera[1], np.sin(elevation)])
+        eye = centre + distance * np.array(
+            [np.cos(elevation) * toward_camera[0], np.cos(elevation) * toward_camera[1], np.sin(elevation)]
+        )
         target = centre + rng.normal(0, 0.03, 3) * [1, 1, 0.3]
         T_world_cam = look_at(eye, target)
         renderer = RaycastRenderer([table_mesh(centre, TABLE_HALF_SIZE), *meshes_world])
@@ -182,8 +194,9 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
         points = backproject(depth, intr)
         valid = np.isfinite(points).all(axis=-1)
         labels = np.where(valid & (gid > 0), gid - 1, -1).astype(np.int32)
-        capture = Capture(points_cam=points, intrinsics=intr, source=f"tabletop({name}, view={view}, seed={seed})",
-                          labels=labels)
+        capture = Capture(
+            points_cam=points, intrinsics=intr, source=f"tabletop({name}, view={view}, seed={seed})", labels=labels
+        )
         try:
             seg = segment_scene(capture, seed=seed)
         except SegmentationError:
@@ -197,8 +210,18 @@ def render_tabletop_view(name: str, view: int, *, seed: int = 0, sensor: str | N
         if best is None or best_hits < MIN_TARGET_PIXELS or best_hits < MIN_TARGET_SHARE * len(best.indices):
             continue
         T_cam_obj = np.linalg.inv(T_world_cam) @ T_target
-        return TabletopView(name, int(view), sensor, best.points_cam, seg.plane_cam, T_cam_obj, centred_mesh(name),
-                            names[1:], best_hits / len(best.indices), capture)
+        return TabletopView(
+            name,
+            int(view),
+            sensor,
+            best.points_cam,
+            seg.plane_cam,
+            T_cam_obj,
+            centred_mesh(name),
+            names[1:],
+            best_hits / len(best.indices),
+            capture,
+        )
     return None
 
 

@@ -68,11 +68,20 @@ class ViewerApp:
             None (none).
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8080, seed: int = 0,
-                 cloud: str | Path | Capture | None = None, weights: str | Path | None = None,
-                 intrinsics: Intrinsics | None = None, max_cloud_points: int | None = None,
-                 announce: Callable[[str], None] | None = None, results: str | Path | None = None,
-                 token: str | None = None, allow_hosts: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        seed: int = 0,
+        cloud: str | Path | Capture | None = None,
+        weights: str | Path | None = None,
+        intrinsics: Intrinsics | None = None,
+        max_cloud_points: int | None = None,
+        announce: Callable[[str], None] | None = None,
+        results: str | Path | None = None,
+        token: str | None = None,
+        allow_hosts: tuple[str, ...] = (),
+    ) -> None:
         # Only this machine's browser (or, off localhost, holders of the token) may drive the app.
         self.guard = Guard.for_host(host, token, allow_hosts)
         self.server = start_server(host, port, self.guard)
@@ -99,9 +108,15 @@ class ViewerApp:
             self.panel = P.build_panel(self.server.gui, seed)
         self.drawing = PipelineDrawing(self.server, max_cloud_points)
         self.jobs = JobSlot(self.panel.job_buttons, self.notify, self._clear_loading_notes)
-        host_api = GraspHost(scene=lambda: self.scene, selected_segment=lambda: self.selected,
-                             mesh=self._existing_mesh, make_mesh=self._make_mesh_for_grasps,
-                             show_layer=self._show_layer, set_status=self._set_status, notify=self.notify)
+        host_api = GraspHost(
+            scene=lambda: self.scene,
+            selected_segment=lambda: self.selected,
+            mesh=self._existing_mesh,
+            make_mesh=self._make_mesh_for_grasps,
+            show_layer=self._show_layer,
+            set_status=self._set_status,
+            notify=self.notify,
+        )
         with pipeline_tab:
             # The Grasps folder goes right after Completion (viser orders folders by a global counter).
             self.grasps = GraspController(self.server, host_api, order=self.panel.timings.order + 0.5)
@@ -110,8 +125,14 @@ class ViewerApp:
             announce(self.url)
 
         try:
-            self.dataset = DatasetTab(self.server, dataset_tab, pipeline_tab, results,
-                                      DatasetHooks(self.set_pipeline_visible, self.load_capture, self.notify), weights)
+            self.dataset = DatasetTab(
+                self.server,
+                dataset_tab,
+                pipeline_tab,
+                results,
+                DatasetHooks(self.set_pipeline_visible, self.load_capture, self.notify),
+                weights,
+            )
             with self.jobs.take(None) as ok:
                 assert ok  # nothing else can run yet
                 self.completer = load_completer(weights)
@@ -121,8 +142,9 @@ class ViewerApp:
                 curves = training_curves(c)
                 if curves is not None:  # the paper's Fig. 4 for these weights
                     with self.panel.model_folder:
-                        self.server.gui.add_image(np.asarray(Image.open(curves).convert("RGB")),
-                                                  label="Jaccard during training", format="png")
+                        self.server.gui.add_image(
+                            np.asarray(Image.open(curves).convert("RGB")), label="Jaccard during training", format="png"
+                        )
                 if isinstance(cloud, Capture):
                     capture = cloud
                 elif cloud is not None:
@@ -175,8 +197,7 @@ class ViewerApp:
             return None, np.inf
         return first_hit(ray_origin, ray_direction, self.scene.points_world)
 
-    def click(self, ray_origin: np.ndarray, ray_direction: np.ndarray,
-              client: viser.ClientHandle | None = None) -> str:
+    def click(self, ray_origin: np.ndarray, ray_direction: np.ndarray, client: viser.ClientHandle | None = None) -> str:
         """A click in the 3D view (world-frame ray): a grasp's hand in front of the segments
         selects that grasp, a segment is completed. Returns what happened: ``"grasp"``,
         ``"segment"`` or ``"nothing"``."""
@@ -186,8 +207,9 @@ class ViewerApp:
             self.grasps.select(k)
             return "grasp"
         if sid is None:
-            self.notify(client, "No segment there", "Click on a coloured segment, or on a grasp's hand.",
-                        auto_close=3.0)
+            self.notify(
+                client, "No segment there", "Click on a coloured segment, or on a grasp's hand.", auto_close=3.0
+            )
             return "nothing"
         self.complete(sid, client)
         return "segment"
@@ -209,8 +231,9 @@ class ViewerApp:
         """Fast-complete every usable segment with one batched CNN pass (the paper's crowded scenes)."""
         return self._complete(None, client)
 
-    def compute_mesh(self, kind: str, segment_id: int | None = None,
-                     client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:
+    def compute_mesh(
+        self, kind: str, segment_id: int | None = None, client: viser.ClientHandle | None = None
+    ) -> trimesh.Trimesh | None:
         """Compute, store on the completion and draw a segment's ``detailed``, ``partial``, ``mirror`` or ``hull`` mesh.
 
         The segment (default: the selected one) is fast-completed first if it has no completion yet.
@@ -227,9 +250,13 @@ class ViewerApp:
             if not ok or self.scene is None:
                 return None
             if kind == "mirror" and self.scene.segmentation.plane_cam is None:
-                self.notify(client, "Mirror needs a support plane",
-                            "No table plane was found in this capture, and the Mirror baseline searches its "
-                            "symmetry plane perpendicular to the table.", "red")
+                self.notify(
+                    client,
+                    "Mirror needs a support plane",
+                    "No table plane was found in this capture, and the Mirror baseline searches its "
+                    "symmetry plane perpendicular to the table.",
+                    "red",
+                )
                 return None
             c = self.completions.get(sid)
             if c is None:
@@ -240,40 +267,81 @@ class ViewerApp:
             self._select(sid)
             return self._compute_mesh_in_slot(kind, c, client)
 
-    def plan_grasps(self, segment_id: int | None = None, hand: str = "barrett", method: str = "fast",
-                    n_grasps: int = 20, client: viser.ClientHandle | None = None, wait: bool = True, seed: int = 0,
-                    budget_seconds: float | None = None) -> GraspJob | None:
+    def plan_grasps(
+        self,
+        segment_id: int | None = None,
+        hand: str = "barrett",
+        method: str = "fast",
+        n_grasps: int = 20,
+        client: viser.ClientHandle | None = None,
+        wait: bool = True,
+        seed: int = 0,
+        budget_seconds: float | None = None,
+    ) -> GraspJob | None:
         """Plan grasps on a segment's (default: the selected one's) ``method`` mesh in the background,
         outside the job slot; see :meth:`GraspController.plan`. ``job.result``: the
         :class:`~shapeviewer.viewer.grasps.SegmentGrasps` (None when cancelled)."""
-        return self.grasps.plan(self.selected if segment_id is None else segment_id, hand, method, n_grasps,
-                                client, wait, seed, budget_seconds)
+        return self.grasps.plan(
+            self.selected if segment_id is None else segment_id,
+            hand,
+            method,
+            n_grasps,
+            client,
+            wait,
+            seed,
+            budget_seconds,
+        )
 
     def cancel_grasps(self) -> bool:
         """Stop the running grasp job (False when none runs)."""
         return self.grasps.cancel()
 
-    def execute_grasps(self, segment_id: int | None = None, indices: list[int] | None = None,
-                       client: viser.ClientHandle | None = None, wait: bool = True,
-                       lift: bool = True) -> GraspJob | None:
+    def execute_grasps(
+        self,
+        segment_id: int | None = None,
+        indices: list[int] | None = None,
+        client: viser.ClientHandle | None = None,
+        wait: bool = True,
+        lift: bool = True,
+    ) -> GraspJob | None:
         """Execute a segment's grasps ``indices`` (None: all) on its true object (synthetic scenes);
         ``job.result``: the :class:`~shapeviewer.grasp.execute.ExecutionResult` list."""
-        return self.grasps.execute(self.grasps.current if segment_id is None else segment_id, indices, client,
-                                   wait, lift)
+        return self.grasps.execute(
+            self.grasps.current if segment_id is None else segment_id, indices, client, wait, lift
+        )
 
     def export_grasps(self, segment_id: int | None = None, fmt: str = "json") -> tuple[str, bytes]:
         """``(file name, content)`` of a segment's grasps: ``json`` or the pybullet scene ``zip``."""
         return self.grasps.export(self.grasps.current if segment_id is None else segment_id, fmt)
 
-    def export_bytes(self, kind: str, segment_id: int | None = None, mesh_format: str = "ply",
-                     frame: str = "world", mesh: str = "fast") -> tuple[str, bytes]:
+    def export_bytes(
+        self,
+        kind: str,
+        segment_id: int | None = None,
+        mesh_format: str = "ply",
+        frame: str = "world",
+        mesh: str = "fast",
+    ) -> tuple[str, bytes]:
         """``(file name, content)`` of an export of a segment (default: the selected one); see
         :func:`~.exports.segment_export`. Raises ValueError with a message for the user."""
-        return segment_export(self.scene, self.completions, self.selected if segment_id is None else segment_id,
-                              kind, mesh_format, frame, mesh)
+        return segment_export(
+            self.scene,
+            self.completions,
+            self.selected if segment_id is None else segment_id,
+            kind,
+            mesh_format,
+            frame,
+            mesh,
+        )
 
-    def notify(self, client: viser.ClientHandle | None, title: str, body: str, color: str | None = None,
-               auto_close: float | None = 8.0) -> None:
+    def notify(
+        self,
+        client: viser.ClientHandle | None,
+        title: str,
+        body: str,
+        color: str | None = None,
+        auto_close: float | None = 8.0,
+    ) -> None:
         """Tell one client (every client when None) something; red ones are remembered as ``last_error``."""
         if color == "red":
             self.last_error = f"{title}: {body}"
@@ -305,15 +373,23 @@ class ViewerApp:
             except SegmentTooSmallError as e:
                 skipped.append(f"segment {sid}: {e}")
         if skipped:
-            self.notify(client, "Cannot complete" if single else "Some segments were skipped",
-                        "; ".join(skipped), "red" if single else "yellow")
+            self.notify(
+                client,
+                "Cannot complete" if single else "Some segments were skipped",
+                "; ".join(skipped),
+                "red" if single else "yellow",
+            )
         if not usable:
             return []
         what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
         self.panel.status.content = f"_Completing {what}..._"
         try:
-            done = complete_points([p for _, p in usable], self.completer, [sid for sid, _ in usable],
-                                   support_plane=self.scene.segmentation.plane_cam)
+            done = complete_points(
+                [p for _, p in usable],
+                self.completer,
+                [sid for sid, _ in usable],
+                support_plane=self.scene.segmentation.plane_cam,
+            )
             t0 = time.perf_counter()
             for c in done:
                 self._draw_completion(c)
@@ -334,8 +410,9 @@ class ViewerApp:
             self.notify(client, "Empty completion", "; ".join(empty), "yellow")
         return done
 
-    def _compute_mesh_in_slot(self, kind: str, c: Completion,
-                              client: viser.ClientHandle | None) -> trimesh.Trimesh | None:
+    def _compute_mesh_in_slot(
+        self, kind: str, c: Completion, client: viser.ClientHandle | None
+    ) -> trimesh.Trimesh | None:
         """Make, draw and store mesh ``kind`` of completion ``c`` (the caller holds the job slot)."""
         sid, title = c.segment_id, MESH_TITLES[kind]
         what = f"the {title.lower()} of segment {sid}"
@@ -364,8 +441,9 @@ class ViewerApp:
             c.timings["detailed_steps"] = steps
         self.panel.layers[f"{kind}_mesh"].value = True  # the user asked to see it
         self.panel.timings.content = P.mesh_timings_markdown(kind, c, send)
-        self.notify(client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.",
-                    "green")
+        self.notify(
+            client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.", "green"
+        )
         return mesh
 
     def _draw_completion(self, c: Completion) -> None:
@@ -380,8 +458,9 @@ class ViewerApp:
             c.samples = self.completer.predict_samples(c.grid_in, 8, context=c.context)
         spread = c.samples.std(axis=0)
         self.drawing.draw_confidence(self.scene, c, spread)
-        self.panel.timings.content = P.confidence_markdown(c.segment_id, *confidence_figures(c.grid_in, c.grid_out,
-                                                                                             spread))
+        self.panel.timings.content = P.confidence_markdown(
+            c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)
+        )
 
     # ------------------------------------------------------------------------------------------
     # Loading
@@ -430,9 +509,14 @@ class ViewerApp:
         self.server.flush()
 
         n_valid = int(capture.valid_mask().sum())
-        self.panel.source.content = P.source_markdown(scene.title, len(capture.flat_points()), n_valid,
-                                                      len(scene.segments), scene.seg_seconds,
-                                                      f"world: {scene.frame_note}")
+        self.panel.source.content = P.source_markdown(
+            scene.title,
+            len(capture.flat_points()),
+            n_valid,
+            len(scene.segments),
+            scene.seg_seconds,
+            f"world: {scene.frame_note}",
+        )
         decimated = capture.decimation_note()
         sent = self.drawing.sent_points()
         if decimated is not None or sent < n_valid:
@@ -444,8 +528,11 @@ class ViewerApp:
         if capture.colors is None:
             self.panel.cloud_colors.value = "depth"
         self.panel.timings.content = P.timings_markdown("No completion yet.", [("segmentation", scene.seg_seconds)])
-        self.panel.status.content = ("Ready. **Click a segment** in the 3D view to complete it." if scene.segments
-                                     else "**No segments found** in this capture.")
+        self.panel.status.content = (
+            "Ready. **Click a segment** in the 3D view to complete it."
+            if scene.segments
+            else "**No segments found** in this capture."
+        )
         return decimated if capture.original_points is not None else None
 
     # ------------------------------------------------------------------------------------------
@@ -468,8 +555,9 @@ class ViewerApp:
         c = self.completions.get(segment_id)
         return None if c is None else getattr(c, f"{kind}_mesh")
 
-    def _make_mesh_for_grasps(self, kind: str, segment_id: int,
-                              client: viser.ClientHandle | None) -> trimesh.Trimesh | None:
+    def _make_mesh_for_grasps(
+        self, kind: str, segment_id: int, client: viser.ClientHandle | None
+    ) -> trimesh.Trimesh | None:
         if kind == "fast":
             c = self.complete(segment_id, client)
             return None if c is None else c.fast_mesh
@@ -529,9 +617,15 @@ class ViewerApp:
                 self.drawing.draw_output(self.scene, c, p.shade_output.value)
 
         for button, kind in ((p.export_points, "points"), (p.export_grids, "grids"), (p.export_mesh, "mesh")):
-            button.on_click(lambda event, kind=kind: send_download(
-                event.client, lambda: self.export_bytes(kind, None, p.mesh_format.value, p.export_frame.value,
-                                                        p.export_mesh_kind.value), self.notify))
+            button.on_click(
+                lambda event, kind=kind: send_download(
+                    event.client,
+                    lambda: self.export_bytes(
+                        kind, None, p.mesh_format.value, p.export_frame.value, p.export_mesh_kind.value
+                    ),
+                    self.notify,
+                )
+            )
 
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(lambda client: self._loading_notes.pop(client.client_id, None))
@@ -542,8 +636,8 @@ class ViewerApp:
     def _on_connect(self, client: viser.ClientHandle) -> None:
         if self.scene is None:  # still building the first scene
             self._loading_notes[client.client_id] = client.add_notification(
-                "Loading the scene", "Generating and segmenting the capture...", loading=True,
-                with_close_button=False)
+                "Loading the scene", "Generating and segmenting the capture...", loading=True, with_close_button=False
+            )
 
     def _clear_loading_notes(self) -> None:
         for note in self._loading_notes.values():
@@ -555,18 +649,34 @@ class ViewerApp:
         return [c.add_notification("Loading", body, loading=True, with_close_button=False) for c in clients]
 
 
-def serve(host: str = "127.0.0.1", port: int = 8080, seed: int = 0, cloud: str | Path | None = None,
-          weights: str | Path | None = None, intrinsics: Intrinsics | None = None, block: bool = True,
-          results: str | Path | None = None, allow_hosts: tuple[str, ...] = ()) -> ViewerApp:
+def serve(
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    seed: int = 0,
+    cloud: str | Path | None = None,
+    weights: str | Path | None = None,
+    intrinsics: Intrinsics | None = None,
+    block: bool = True,
+    results: str | Path | None = None,
+    allow_hosts: tuple[str, ...] = (),
+) -> ViewerApp:
     """Start the viewer (``python app.py`` and ``shapeviewer serve``); print its URL; serve until Ctrl-C.
 
     ``results``: the Dataset tab's results folder; None = the sample store in the user cache (built
     in the background on first run). ``allow_hosts``: more names the server answers to (see
     :mod:`.guard`). With ``block=False`` returns the running :class:`ViewerApp` instead.
     """
-    app = ViewerApp(host, port, seed, cloud, weights, intrinsics,
-                    announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True),
-                    results=DEFAULT if results is None else results, allow_hosts=allow_hosts)
+    app = ViewerApp(
+        host,
+        port,
+        seed,
+        cloud,
+        weights,
+        intrinsics,
+        announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True),
+        results=DEFAULT if results is None else results,
+        allow_hosts=allow_hosts,
+    )
     print(f"shapeviewer: ready on {app.url}  (Ctrl-C to stop)", flush=True)
     if not block:
         return app

@@ -49,8 +49,10 @@ class PipelineDrawing:
         self.server = server
         self.max_cloud_points = max_cloud_points
         self.nodes: dict[str, viser.SceneNodeHandle] = {}
-        self.layer_roots = {layer.key: server.scene.add_frame(f"/{layer.key}", show_axes=False, visible=layer.visible)
-                            for layer in LAYERS}
+        self.layer_roots = {
+            layer.key: server.scene.add_frame(f"/{layer.key}", show_axes=False, visible=layer.visible)
+            for layer in LAYERS
+        }
         self.visible = True  # False while the Dataset tab shows its scene
 
     # ------------------------------------------------------------------------------------------
@@ -88,8 +90,11 @@ class PipelineDrawing:
 
     def sent_points(self) -> int:
         """How many cloud and segment points the browsers were sent."""
-        return sum(len(h.points) for name, h in self.nodes.items()
-                   if name == "/cloud/points" or name.startswith("/segments/seg_"))
+        return sum(
+            len(h.points)
+            for name, h in self.nodes.items()
+            if name == "/cloud/points" or name.startswith("/segments/seg_")
+        )
 
     # ------------------------------------------------------------------------------------------
     # A scene
@@ -117,8 +122,15 @@ class PipelineDrawing:
         if len(pts_cam) > budget:
             keep = np.random.default_rng(0).choice(len(pts_cam), budget, replace=False)
             pts_cam, colors = pts_cam[keep], colors[keep]
-        self.add("/cloud/points", self.server.scene.add_point_cloud, transform_points(T, pts_cam), colors,
-                 point_size=CLOUD_POINT_SIZE, precision="float32", point_shading="flat")
+        self.add(
+            "/cloud/points",
+            self.server.scene.add_point_cloud,
+            transform_points(T, pts_cam),
+            colors,
+            point_size=CLOUD_POINT_SIZE,
+            precision="float32",
+            point_shading="flat",
+        )
 
     def draw_segments(self, scene: LoadedScene) -> None:
         shown = scene.display_points(MAX_SEGMENT_POINTS)
@@ -126,23 +138,54 @@ class PipelineDrawing:
             pts = shown[sid]
             if len(pts) == 0:
                 continue
-            self.add(f"/segments/seg_{sid}", self.server.scene.add_point_cloud, pts,
-                     tuple(int(v) for v in seg.color), point_size=SEGMENT_POINT_SIZE, precision="float32")
+            self.add(
+                f"/segments/seg_{sid}",
+                self.server.scene.add_point_cloud,
+                pts,
+                tuple(int(v) for v in seg.color),
+                point_size=SEGMENT_POINT_SIZE,
+                precision="float32",
+            )
             top = pts[np.argmax(pts[:, 2])]
-            self.add(f"/segments/label_{sid}", self.server.scene.add_label, str(sid),
-                     position=top + np.array([0.0, 0.0, 0.03]), anchor="bottom-center", font_screen_scale=0.9)
+            self.add(
+                f"/segments/label_{sid}",
+                self.server.scene.add_label,
+                str(sid),
+                position=top + np.array([0.0, 0.0, 0.03]),
+                anchor="bottom-center",
+                font_screen_scale=0.9,
+            )
 
     def draw_sensor_and_table(self, scene: LoadedScene) -> None:
         T = scene.T_world_cam
         intr = scene.capture.intrinsics or Intrinsics.kinect()
         wxyz = viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz
-        self.add("/sensor", self.server.scene.add_camera_frustum, fov=intr.vertical_fov, aspect=intr.aspect,
-                 scale=0.08, thickness=0.003, color=(60, 60, 60), wxyz=wxyz, position=T[:3, 3])
+        self.add(
+            "/sensor",
+            self.server.scene.add_camera_frustum,
+            fov=intr.vertical_fov,
+            aspect=intr.aspect,
+            scale=0.08,
+            thickness=0.003,
+            color=(60, 60, 60),
+            wxyz=wxyz,
+            position=T[:3, 3],
+        )
         focus, _ = scene.focus()
         # The table (or floor) is the plane z = 0 of the world frame.
-        self.add("/table", self.server.scene.add_grid, width=1.5, height=1.5, plane="xy", cell_size=0.1,
-                 section_size=0.5, position=(focus[0], focus[1], 0.0), plane_color=(235, 230, 220),
-                 plane_opacity=0.35, shadow_opacity=0.0)
+        self.add(
+            "/table",
+            self.server.scene.add_grid,
+            width=1.5,
+            height=1.5,
+            plane="xy",
+            cell_size=0.1,
+            section_size=0.5,
+            position=(focus[0], focus[1], 0.0),
+            plane_color=(235, 230, 220),
+            plane_opacity=0.35,
+            shadow_opacity=0.0,
+        )
 
     def set_default_view(self, scene: LoadedScene) -> None:
         """Point new and connected browsers' cameras at the scene's objects from the sensor's side."""
@@ -173,8 +216,9 @@ class PipelineDrawing:
         # The fast mesh goes first: it is what the user waits for (and what the benchmark times).
         for kind in MESH_KINDS:
             self.draw_mesh(scene, kind, sid, getattr(c, f"{kind}_mesh"))
-        self.draw_voxels(scene, f"/cnn_input/seg_{sid}", surface_voxels(c.grid_in), c, INPUT_VOXEL_FILL,
-                         shade(color, 0.55))
+        self.draw_voxels(
+            scene, f"/cnn_input/seg_{sid}", surface_voxels(c.grid_in), c, INPUT_VOXEL_FILL, shade(color, 0.55)
+        )
         self.draw_output(scene, c, shade_output)
 
     def draw_mesh(self, scene: LoadedScene, kind: str, sid: int, mesh: trimesh.Trimesh | None) -> None:
@@ -184,10 +228,22 @@ class PipelineDrawing:
             self.remove(name)
             return
         color = np.asarray(scene.segments[sid].color)
-        colors = {"fast": shade(color, 1.35), "detailed": shade(color, 0.7), "partial": PARTIAL_COLOR,
-                  "mirror": MIRROR_COLOR, "hull": HULL_COLOR}
-        self.add(name, self.server.scene.add_mesh_simple, transform_points(scene.T_world_cam, mesh.vertices),
-                 np.asarray(mesh.faces), color=colors[kind], cast_shadow=False, receive_shadow=False)
+        colors = {
+            "fast": shade(color, 1.35),
+            "detailed": shade(color, 0.7),
+            "partial": PARTIAL_COLOR,
+            "mirror": MIRROR_COLOR,
+            "hull": HULL_COLOR,
+        }
+        self.add(
+            name,
+            self.server.scene.add_mesh_simple,
+            transform_points(scene.T_world_cam, mesh.vertices),
+            np.asarray(mesh.faces),
+            color=colors[kind],
+            cast_shadow=False,
+            receive_shadow=False,
+        )
 
     def draw_output(self, scene: LoadedScene, c: Completion, shade_output: bool) -> None:
         """The CNN output's surface voxels, shaded by probability (``shade_output``) or in the segment's colour."""
@@ -202,17 +258,29 @@ class PipelineDrawing:
         """The CNN output's surface voxels coloured by ``spread`` (per voxel of the grid, the std of
         sample completions' probabilities)."""
         idx = surface_voxels(c.grid_out)
-        self.draw_voxels(scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL,
-                         spread_colors(spread[tuple(idx.T)]))
+        self.draw_voxels(
+            scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, spread_colors(spread[tuple(idx.T)])
+        )
 
-    def draw_voxels(self, scene: LoadedScene, name: str, indices: np.ndarray, c: Completion, fill: float,
-                    colors) -> None:
+    def draw_voxels(
+        self, scene: LoadedScene, name: str, indices: np.ndarray, c: Completion, fill: float, colors
+    ) -> None:
         """Cubes (``fill`` of a voxel's edge) at voxels ``indices`` of ``c``'s grid; removed when there are none."""
         if len(indices) == 0:
             self.remove(name)
             return
         cubes = voxel_cubes(indices, c.frame, scene.T_world_cam, fill)
         identity = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (len(indices), 4))
-        self.add(name, self.server.scene.add_batched_meshes_simple, cubes.vertices, cubes.faces,
-                 batched_wxyzs=identity, batched_positions=cubes.positions, batched_colors=colors,
-                 lod="off", flat_shading=True, cast_shadow=False, receive_shadow=False)
+        self.add(
+            name,
+            self.server.scene.add_batched_meshes_simple,
+            cubes.vertices,
+            cubes.faces,
+            batched_wxyzs=identity,
+            batched_positions=cubes.positions,
+            batched_colors=colors,
+            lod="off",
+            flat_shading=True,
+            cast_shadow=False,
+            receive_shadow=False,
+        )

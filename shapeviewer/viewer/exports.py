@@ -10,8 +10,15 @@ from ..pipeline import Completion
 from .state import MESH_KINDS, MESH_TITLES, LoadedScene
 
 
-def segment_export(scene: LoadedScene | None, completions: dict[int, Completion], sid: int | None, kind: str,
-                   mesh_format: str = "ply", frame: str = "world", mesh: str = "fast") -> tuple[str, bytes]:
+def segment_export(
+    scene: LoadedScene | None,
+    completions: dict[int, Completion],
+    sid: int | None,
+    kind: str,
+    mesh_format: str = "ply",
+    frame: str = "world",
+    mesh: str = "fast",
+) -> tuple[str, bytes]:
     """``(file name, content)`` of an export of segment ``sid`` of ``scene``.
 
     Args:
@@ -45,7 +52,8 @@ def segment_export(scene: LoadedScene | None, completions: dict[int, Completion]
         if m is None and mesh == "fast":
             raise ValueError(f"Segment {sid} has no fast mesh: {c.error}")
         if m is None:
-            raise ValueError(f"Segment {sid} has no {MESH_TITLES[mesh].lower()} yet: compute it in the "
-                             "Completion folder first.")
+            raise ValueError(
+                f"Segment {sid} has no {MESH_TITLES[mesh].lower()} yet: compute it in the Completion folder first."
+            )
         return f"{stem}_{mesh}_{frame}.{mesh_format}", export.mesh_bytes(m, mesh_format, frame, T)
     raise ValueError(f"unknown export {kind!r}")

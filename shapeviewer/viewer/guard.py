@@ -127,7 +127,8 @@ class Guard:
         return not is_loopback(self.bind_host) and _is_ip(name)
 
     def refusal(self, path: str, headers, local_port: int) -> str | None:
-        """Why a request (``path`` with its query, ``headers``, arrived on ``local_port``) is refused; None if allowed."""
+        """Why a request (``path`` with its query, ``headers``, arrived on ``local_port``) is refused;
+        None if allowed."""
         hosts = headers.get_all("Host")
         if len(hosts) != 1:
             return "missing or repeated Host header"
@@ -140,9 +141,13 @@ class Guard:
         if origins:
             origin = urlsplit(origins[0]) if origins[0] != "null" else None
             try:
-                ok = (origin is not None and origin.scheme in ("http", "https") and origin.hostname is not None
-                      and self.allowed_host(origin.hostname.lower())
-                      and (origin.port or (443 if origin.scheme == "https" else 80)) == local_port)
+                ok = (
+                    origin is not None
+                    and origin.scheme in ("http", "https")
+                    and origin.hostname is not None
+                    and self.allowed_host(origin.hostname.lower())
+                    and (origin.port or (443 if origin.scheme == "https" else 80)) == local_port
+                )
             except ValueError:  # a port that is not a number
                 ok = False
             if not ok:
@@ -184,8 +189,7 @@ class Guard:
                 # The page's WebSocket and assets are requested without the query: a cookie carries
                 # the token for them. HttpOnly: page scripts never see it; Strict: never sent by
                 # another site's requests.
-                response.headers["Set-Cookie"] = (f"{cookie_name(port)}={self.token}; Path=/; HttpOnly; "
-                                                  "SameSite=Strict")
+                response.headers["Set-Cookie"] = f"{cookie_name(port)}={self.token}; Path=/; HttpOnly; SameSite=Strict"
             return response
 
         return process_request
@@ -222,8 +226,10 @@ def start_server(host: str, port: int, guard: Guard) -> viser.ViserServer:
             ws_server.serve = original
     if not installed:
         server.stop()
-        raise RuntimeError(f"viser {viser.__version__} did not start its server through websockets' serve(): "
-                           "the origin/host guard cannot be installed")
+        raise RuntimeError(
+            f"viser {viser.__version__} did not start its server through websockets' serve(): "
+            "the origin/host guard cannot be installed"
+        )
     return server
 
 

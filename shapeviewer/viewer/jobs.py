@@ -21,8 +21,14 @@ READY = "Ready. Click a segment to complete it."
 Notify = Callable[..., None]
 
 
-def notify_clients(server: viser.ViserServer, client: viser.ClientHandle | None, title: str, body: str,
-                   color: str | None = None, auto_close: float | None = 8.0) -> None:
+def notify_clients(
+    server: viser.ViserServer,
+    client: viser.ClientHandle | None,
+    title: str,
+    body: str,
+    color: str | None = None,
+    auto_close: float | None = 8.0,
+) -> None:
     """Tell ``client`` (every client when None or when it has gone) something; never raises.
 
     A job can outlive the browser that started it, so its client may have disconnected by the
@@ -38,8 +44,12 @@ def notify_clients(server: viser.ViserServer, client: viser.ClientHandle | None,
             log.debug("notification to client %s failed", c.client_id, exc_info=True)
 
 
-def send_download(client: viser.ClientHandle | None, make: Callable[[], tuple[str, bytes]], notify: Notify,
-                  errors: tuple[type[Exception], ...] = (ValueError,)) -> None:
+def send_download(
+    client: viser.ClientHandle | None,
+    make: Callable[[], tuple[str, bytes]],
+    notify: Notify,
+    errors: tuple[type[Exception], ...] = (ValueError,),
+) -> None:
     """Send the ``(file name, content)`` that ``make`` returns to ``client``'s browser; when it
     raises one of ``errors`` (a message for the user), show that instead."""
     try:
@@ -61,8 +71,9 @@ class JobSlot:
         after: called when a job ends (the app clears its "loading" notifications).
     """
 
-    def __init__(self, buttons: tuple[viser.GuiButtonHandle, ...], notify: Notify,
-                 after: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self, buttons: tuple[viser.GuiButtonHandle, ...], notify: Notify, after: Callable[[], None] | None = None
+    ) -> None:
         self.lock = threading.Lock()  # held by the running job
         self.buttons = buttons
         self.notify = notify

@@ -17,8 +17,14 @@ from .visuals import GUESS_SPREAD
 
 NO_SEGMENT = "(none)"
 # Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
-ALGORITHM_1_STEPS = (("density", "density ratio"), ("upsample", "up-sample CNN output"), ("merge", "merge"),
-                     ("fill_gaps", "fill gaps"), ("smooth", "smooth"), ("marching_cubes", "marching cubes"))
+ALGORITHM_1_STEPS = (
+    ("density", "density ratio"),
+    ("upsample", "up-sample CNN output"),
+    ("merge", "merge"),
+    ("fill_gaps", "fill gaps"),
+    ("smooth", "smooth"),
+    ("marching_cubes", "marching cubes"),
+)
 
 
 @dataclass(frozen=True)
@@ -36,14 +42,26 @@ LAYERS: tuple[Layer, ...] = (
     Layer("segments", "Segments", True, "Object segments after table removal and Euclidean clustering (step 2)."),
     Layer("cnn_input", "CNN input", True, "Occupied voxels of the 40^3 input grid of each completed segment (step 3)."),
     Layer("cnn_output", "CNN output", False, "Voxels the CNN marks occupied (p > 0.5) (step 4)."),
-    Layer("confidence", "Confidence", False,
-          "The CNN output shaded by how much 8 sample completions disagree: pale = seen, dark purple = a guess."),
+    Layer(
+        "confidence",
+        "Confidence",
+        False,
+        "The CNN output shaded by how much 8 sample completions disagree: pale = seen, dark purple = a guess.",
+    ),
     Layer("fast_mesh", "Fast mesh", True, "Marching cubes of the CNN output, in metres (step 5a)."),
-    Layer("detailed_mesh", "Detailed mesh", False,
-          "Algorithm 1: observed points merged with the CNN output, smoothed, meshed (step 5b)."),
+    Layer(
+        "detailed_mesh",
+        "Detailed mesh",
+        False,
+        "Algorithm 1: observed points merged with the CNN output, smoothed, meshed (step 5b).",
+    ),
     Layer("partial_mesh", "Partial baseline", False, "Baseline: marching cubes of the observed points alone."),
-    Layer("mirror_mesh", "Mirror baseline", False,
-          "Baseline: the view mirrored about its best symmetry plane (Bohg et al. 2011)."),
+    Layer(
+        "mirror_mesh",
+        "Mirror baseline",
+        False,
+        "Baseline: the view mirrored about its best symmetry plane (Bohg et al. 2011).",
+    ),
     Layer("hull_mesh", "Hull baseline", False, "Baseline: the convex hull of the observed points."),
     Layer("grasps", "Grasps", True, "Hands at the grasps planned on a segment's mesh, coloured by epsilon (step 6)."),
 )
@@ -82,14 +100,21 @@ class Panel:
     @property
     def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
         """Buttons that start a job; disabled while one runs (double clicks would queue jobs)."""
-        return (self.new_scene, self.load_cloud, self.complete, self.complete_all, self.detailed, self.partial,
-                self.mirror, self.hull)
+        return (
+            self.new_scene,
+            self.load_cloud,
+            self.complete,
+            self.complete_all,
+            self.detailed,
+            self.partial,
+            self.mirror,
+            self.hull,
+        )
 
 
 def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
     """Add the panel's controls to ``gui`` (all empty until a scene is loaded)."""
-    gui.add_markdown("**Shape completion** — Varley et al., IROS 2017. "
-                     "Click a segment in the 3D view to complete it.")
+    gui.add_markdown("**Shape completion** — Varley et al., IROS 2017. Click a segment in the 3D view to complete it.")
     status = gui.add_markdown("_Loading the scene..._")
     with gui.add_folder("Source"):
         source = gui.add_markdown("")
@@ -98,25 +123,39 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
     with gui.add_folder("Completion"):
         segment = gui.add_dropdown("Segment", (NO_SEGMENT,), hint="Pick a segment to complete (or click it in 3D)")
         complete = gui.add_button("Complete segment", icon=viser.Icon.CUBE, hint="Fast-complete the selected segment")
-        complete_all = gui.add_button("Complete all", icon=viser.Icon.BOX_MULTIPLE,
-                                      hint="Fast-complete every segment in one batched CNN pass")
-        detailed = gui.add_button("Detailed mesh", icon=viser.Icon.SPARKLES,
-                                  hint="Algorithm 1's detailed mesh of the selected segment (a few seconds)")
+        complete_all = gui.add_button(
+            "Complete all", icon=viser.Icon.BOX_MULTIPLE, hint="Fast-complete every segment in one batched CNN pass"
+        )
+        detailed = gui.add_button(
+            "Detailed mesh",
+            icon=viser.Icon.SPARKLES,
+            hint="Algorithm 1's detailed mesh of the selected segment (a few seconds)",
+        )
         with gui.add_folder("Baselines"):
-            partial = gui.add_button("Partial", icon=viser.Icon.CUBE_OFF,
-                                     hint="Baseline: mesh of the selected segment's observed points alone")
-            mirror = gui.add_button("Mirror", icon=viser.Icon.FLIP_VERTICAL,
-                                    hint="Baseline: the selected segment completed by symmetry (needs a table)")
-            hull = gui.add_button("Hull", icon=viser.Icon.POLYGON,
-                                  hint="Baseline: the convex hull of the selected segment's observed points")
+            partial = gui.add_button(
+                "Partial",
+                icon=viser.Icon.CUBE_OFF,
+                hint="Baseline: mesh of the selected segment's observed points alone",
+            )
+            mirror = gui.add_button(
+                "Mirror",
+                icon=viser.Icon.FLIP_VERTICAL,
+                hint="Baseline: the selected segment completed by symmetry (needs a table)",
+            )
+            hull = gui.add_button(
+                "Hull",
+                icon=viser.Icon.POLYGON,
+                hint="Baseline: the convex hull of the selected segment's observed points",
+            )
         timings = gui.add_markdown("_No completion yet._")
     with gui.add_folder("Layers"):
-        layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint)
-                  for layer in LAYERS}
-        cloud_colors = gui.add_dropdown("Cloud colours", ("capture", "depth"),
-                                        hint="Colour the cloud with the sensor's colours or by depth")
-        shade_output = gui.add_checkbox("Shade by p", True,
-                                        hint="Colour CNN output voxels by occupancy probability (yellow 0.5, red 1)")
+        layers = {layer.key: gui.add_checkbox(layer.label, layer.visible, hint=layer.hint) for layer in LAYERS}
+        cloud_colors = gui.add_dropdown(
+            "Cloud colours", ("capture", "depth"), hint="Colour the cloud with the sensor's colours or by depth"
+        )
+        shade_output = gui.add_checkbox(
+            "Shade by p", True, hint="Colour CNN output voxels by occupancy probability (yellow 0.5, red 1)"
+        )
     with gui.add_folder("Load a scene"):
         seed_h = gui.add_number("Seed", seed, min=0, step=1, hint="Seed of the generated tabletop scene")
         new_scene = gui.add_button("New scene", icon=viser.Icon.DICE, hint="Generate the tabletop scene of this seed")
@@ -127,19 +166,49 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
         mesh_format = gui.add_dropdown("Mesh format", MESH_FORMATS)
         export_mesh_kind = gui.add_dropdown("Mesh", MESH_KINDS, hint="Which of the segment's meshes to export")
         export_points = gui.add_button("Segment points (PLY)", icon=viser.Icon.DOWNLOAD)
-        export_grids = gui.add_button("CNN grids (NPZ)", icon=viser.Icon.DOWNLOAD,
-                                      hint="CNN input, output probabilities, grid frame (grid -> camera metres)")
+        export_grids = gui.add_button(
+            "CNN grids (NPZ)",
+            icon=viser.Icon.DOWNLOAD,
+            hint="CNN input, output probabilities, grid frame (grid -> camera metres)",
+        )
         export_mesh = gui.add_button("Mesh", icon=viser.Icon.DOWNLOAD, hint="The mesh chosen above")
-    return Panel(status, source, seed_h, new_scene, cloud_path, load_cloud, model, model_folder, segment, complete,
-                 complete_all, detailed, partial, mirror, hull, timings, layers, cloud_colors, shade_output,
-                 export_frame, mesh_format, export_mesh_kind, export_points, export_grids, export_mesh)
+    return Panel(
+        status,
+        source,
+        seed_h,
+        new_scene,
+        cloud_path,
+        load_cloud,
+        model,
+        model_folder,
+        segment,
+        complete,
+        complete_all,
+        detailed,
+        partial,
+        mirror,
+        hull,
+        timings,
+        layers,
+        cloud_colors,
+        shade_output,
+        export_frame,
+        mesh_format,
+        export_mesh_kind,
+        export_points,
+        export_grids,
+        export_mesh,
+    )
 
 
-def source_markdown(source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float,
-                    frame_note: str) -> str:
+def source_markdown(
+    source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float, frame_note: str
+) -> str:
     """What was loaded: name, valid/total points, segments, segmentation time, which world frame."""
-    return (f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments  \n"
-            f"segmentation {seg_seconds * 1000:.0f} ms · {frame_note}")
+    return (
+        f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments  \n"
+        f"segmentation {seg_seconds * 1000:.0f} ms · {frame_note}"
+    )
 
 
 def model_markdown(arch: str, source: str, trained: bool, meta: dict) -> str:
@@ -147,8 +216,11 @@ def model_markdown(arch: str, source: str, trained: bool, meta: dict) -> str:
     lines = [f"**{arch}** · weights: `{source}`"]
     if trained:
         facts = [f"{meta['steps']:,} training steps"] if "steps" in meta else []
-        jaccard = [f"{name.replace('_', ' ')} {v['jaccard']:.2f}" for name, v in meta.get("eval", {}).items()
-                   if isinstance(v, dict) and "jaccard" in v]
+        jaccard = [
+            f"{name.replace('_', ' ')} {v['jaccard']:.2f}"
+            for name, v in meta.get("eval", {}).items()
+            if isinstance(v, dict) and "jaccard" in v
+        ]
         if jaccard:
             facts.append("Jaccard: " + ", ".join(jaccard))
         lines.extend(facts)
@@ -167,15 +239,26 @@ def completion_timings(done: list[Completion], seg_seconds: float, send: float) 
     """Seconds per stage of a batch of fast completions (totals over ``done``), with the scene's
     segmentation and the time to send the results to the browser."""
     total = {k: sum(c.timings.get(k, 0.0) for c in done) for k in ("voxelize", "cnn", "fast_mesh")}
-    return {"segmentation": seg_seconds, "voxelize": total["voxelize"], "cnn": total["cnn"],
-            "marching_cubes": total["fast_mesh"], "send": send, "click_to_mesh": sum(total.values()) + send}
+    return {
+        "segmentation": seg_seconds,
+        "voxelize": total["voxelize"],
+        "cnn": total["cnn"],
+        "marching_cubes": total["fast_mesh"],
+        "send": send,
+        "click_to_mesh": sum(total.values()) + send,
+    }
 
 
 def completion_timings_markdown(title: str, timings: dict[str, float]) -> str:
     """The stage table of :func:`completion_timings`."""
-    rows = [("segmentation (scene)", timings["segmentation"]), ("voxelize", timings["voxelize"]),
-            ("CNN", timings["cnn"]), ("marching cubes", timings["marching_cubes"]),
-            ("send to browser", timings["send"]), ("**click → mesh**", timings["click_to_mesh"])]
+    rows = [
+        ("segmentation (scene)", timings["segmentation"]),
+        ("voxelize", timings["voxelize"]),
+        ("CNN", timings["cnn"]),
+        ("marching cubes", timings["marching_cubes"]),
+        ("send to browser", timings["send"]),
+        ("**click → mesh**", timings["click_to_mesh"]),
+    ]
     return timings_markdown(title, rows)
 
 
@@ -196,6 +279,8 @@ def mesh_timings_markdown(kind: str, c: Completion, send: float) -> str:
 def confidence_markdown(segment_id: int, spread_by_side: list[tuple[str, float]], guessed: float) -> str:
     """The confidence of a completion: mean sample spread on each side (seen, unseen) and the share
     of completed voxels that are a guess (see :func:`~.visuals.confidence_figures`)."""
-    return (f"Segment **{segment_id}**: confidence of the completion  \n"
-            + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)
-            + f"  \n{100 * guessed:.0f}% of the completed voxels are a guess (spread > {GUESS_SPREAD})")
+    return (
+        f"Segment **{segment_id}**: confidence of the completion  \n"
+        + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)
+        + f"  \n{100 * guessed:.0f}% of the completed voxels are a guess (spread > {GUESS_SPREAD})"
+    )

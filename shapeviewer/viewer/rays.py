@@ -24,8 +24,13 @@ REL_TOLERANCE = 0.01  # metres per metre along the ray
 K = TypeVar("K")
 
 
-def first_hit(origin: np.ndarray, direction: np.ndarray, point_sets: Mapping[K, np.ndarray],
-              abs_tolerance: float = ABS_TOLERANCE, rel_tolerance: float = REL_TOLERANCE) -> tuple[K | None, float]:
+def first_hit(
+    origin: np.ndarray,
+    direction: np.ndarray,
+    point_sets: Mapping[K, np.ndarray],
+    abs_tolerance: float = ABS_TOLERANCE,
+    rel_tolerance: float = REL_TOLERANCE,
+) -> tuple[K | None, float]:
     """``(key, t)`` of the point set the ray hits first, or ``(None, inf)``.
 
     Args:
@@ -76,8 +81,9 @@ def ray_through(origin: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.
     return o, d / np.linalg.norm(d)
 
 
-def project_to_pixels(points_world: np.ndarray, position: np.ndarray, R_world_camera: np.ndarray,
-                      fov: float, width: int, height: int) -> np.ndarray:
+def project_to_pixels(
+    points_world: np.ndarray, position: np.ndarray, R_world_camera: np.ndarray, fov: float, width: int, height: int
+) -> np.ndarray:
     """Pixel coordinates (N, 2) of world points seen by a viser client camera.
 
     Args:

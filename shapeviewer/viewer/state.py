@@ -23,8 +23,12 @@ from ..segment import Segment, Segmentation, segment_scene, world_frame
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
 MESH_KINDS = ("fast", "detailed", "partial", "mirror", "hull")
 # What the panel calls the meshes made on request (the fast mesh comes with every completion).
-MESH_TITLES = {"detailed": "Detailed mesh", "partial": "Partial baseline", "mirror": "Mirror baseline",
-               "hull": "Hull baseline"}
+MESH_TITLES = {
+    "detailed": "Detailed mesh",
+    "partial": "Partial baseline",
+    "mirror": "Mirror baseline",
+    "hull": "Hull baseline",
+}
 
 
 @dataclass
@@ -60,7 +64,7 @@ class LoadedScene:
         """A short file-name stem for downloads."""
         src = self.capture.source
         if src.startswith("default(seed="):
-            return f"default_seed{src[len('default(seed='):-1]}"
+            return f"default_seed{src[len('default(seed=') : -1]}"
         return Path(src).stem or "capture"
 
     @property
@@ -111,8 +115,11 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
     seg = segment_scene(capture)
     seg_seconds = time.perf_counter() - t0
     if require_segment and not any(usable(s) for s in seg.segments):
-        found = (f"none of its {len(seg.segments)} segments is large enough to complete" if seg.segments
-                 else f"no segments found among its {int(capture.valid_mask().sum()):,} valid points")
+        found = (
+            f"none of its {len(seg.segments)} segments is large enough to complete"
+            if seg.segments
+            else f"no segments found among its {int(capture.valid_mask().sum()):,} valid points"
+        )
         raise ValueError(f"{found}; the current scene is kept")
     T, note = world_frame(capture, seg)
     points_world = {}

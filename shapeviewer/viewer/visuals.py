@@ -47,8 +47,9 @@ def spread_colors(spread: np.ndarray) -> np.ndarray:
     return (colormaps["magma_r"](0.02 + 0.9 * x)[:, :3] * 255).astype(np.uint8)
 
 
-def confidence_figures(grid_in: np.ndarray, grid_out: np.ndarray,
-                       spread: np.ndarray) -> tuple[list[tuple[str, float]], float]:
+def confidence_figures(
+    grid_in: np.ndarray, grid_out: np.ndarray, spread: np.ndarray
+) -> tuple[list[tuple[str, float]], float]:
     """How sure a completion is: ``([(side, mean spread)], share of guessed voxels)``.
 
     A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an

@@ -27,8 +27,12 @@ ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most vi
 SLIDER = {"jaccard": (0.0, 1.0, 0.01), "hausdorff_mean_mm": (0.0, 100.0, 0.5), "geodesic": (0.0, 1.0, 0.01)}
 STEPS = {"◀ object": ("object", -1), "◀ view": ("view", -1), "view ▶": ("view", 1), "object ▶": ("object", 1)}
 # Command palette entries: (label, hotkey, modifier, what, delta).
-HOTKEYS = (("Next view", "N", None, "view", 1), ("Previous view", "P", None, "view", -1),
-           ("Next object", "N", "shift", "object", 1), ("Previous object", "P", "shift", "object", -1))
+HOTKEYS = (
+    ("Next view", "N", None, "view", 1),
+    ("Previous view", "P", None, "view", -1),
+    ("Next object", "N", "shift", "object", 1),
+    ("Previous object", "P", "shift", "object", -1),
+)
 NO_OBJECT = "(no object)"
 NO_VIEW = "(no view)"
 
@@ -102,16 +106,27 @@ class DatasetControls:
     @property
     def downloads(self) -> tuple[tuple[viser.GuiButtonHandle, str], ...]:
         """The export buttons and what each exports (see :func:`~.exports.export_bytes`)."""
-        return ((self.export_mesh, "mesh"), (self.export_grasps, "grasps"), (self.export_view_csv, "view_csv"),
-                (self.export_index_csv, "index_csv"), (self.export_rows_csv, "rows_csv"),
-                (self.export_tables, "tables"))
+        return (
+            (self.export_mesh, "mesh"),
+            (self.export_grasps, "grasps"),
+            (self.export_view_csv, "view_csv"),
+            (self.export_index_csv, "index_csv"),
+            (self.export_rows_csv, "rows_csv"),
+            (self.export_tables, "tables"),
+        )
 
     def filters(self) -> dict:
         """The index filters, as keyword arguments of :meth:`ResultsStore.objects`."""
         rng = tuple(self.range.value) if self.limit.value else None
-        return {"search": self.search.value, "split": SPLITS[self.split.value], "with_results": self.with_results.value,
-                "method": self.method.value, "metric": self.metric.value, "order": ORDERS[self.order.value],
-                "metric_range": rng}
+        return {
+            "search": self.search.value,
+            "split": SPLITS[self.split.value],
+            "with_results": self.with_results.value,
+            "method": self.method.value,
+            "metric": self.metric.value,
+            "order": ORDERS[self.order.value],
+            "metric_range": rng,
+        }
 
     @contextlib.contextmanager
     def quiet(self) -> Iterator[None]:
@@ -123,8 +138,9 @@ class DatasetControls:
             finally:
                 self.updating = False
 
-    def sync_selectors(self, object_options: dict[str, str], selected: str | None, view_options: dict[str, int],
-                       view: int | None) -> None:
+    def sync_selectors(
+        self, object_options: dict[str, str], selected: str | None, view_options: dict[str, int], view: int | None
+    ) -> None:
         """Fill the Object and View dropdowns (entry -> object name / view number) and show the
         ``selected`` object's ``view`` (None: the first entry / no view)."""
         with self.quiet():
@@ -224,21 +240,26 @@ def build_controls(gui: viser.GuiApi, tab: viser.GuiTabHandle, pipeline_tab: vis
     """Add the Dataset tab's controls to ``tab``, and its "back to the pipeline" button to ``pipeline_tab``."""
     with pipeline_tab:
         # Shown at the top of the Pipeline tab while the dataset is in the 3D view.
-        pipeline_note = gui.add_button("Back to the pipeline scene",
-                                       icon=viser.Icon.ARROW_BACK_UP, visible=False, order=-1.0, color="orange")
+        pipeline_note = gui.add_button(
+            "Back to the pipeline scene", icon=viser.Icon.ARROW_BACK_UP, visible=False, order=-1.0, color="orange"
+        )
     with tab:
-        gui.add_markdown("Browse the evaluation results: each object's views, the ground truth, the partial "
-                         "view and every method's completion side by side (paper Fig. 1).")
+        gui.add_markdown(
+            "Browse the evaluation results: each object's views, the ground truth, the partial "
+            "view and every method's completion side by side (paper Fig. 1)."
+        )
         status = gui.add_markdown("_Opening the results store..._")
         progress = gui.add_progress_bar(0.0, visible=False, animated=True)
         show = gui.add_button("Show the dataset in 3D", icon=viser.Icon.EYE)
         with gui.add_folder("Find an object"):
             search = gui.add_text("Search", "", hint="Part of an object's name, e.g. mug or ycb/0")
             split = gui.add_dropdown("Split", tuple(SPLITS), hint="The object's split (SPEC §4)")
-            with_results = gui.add_checkbox("Only with results", True,
-                                            hint="Hide catalogue objects that have no evaluated view")
-            method = gui.add_dropdown("Method", METHODS, initial_value="Ours-fast",
-                                      hint="Whose mean metric orders and filters the index")
+            with_results = gui.add_checkbox(
+                "Only with results", True, hint="Hide catalogue objects that have no evaluated view"
+            )
+            method = gui.add_dropdown(
+                "Method", METHODS, initial_value="Ours-fast", hint="Whose mean metric orders and filters the index"
+            )
             metric = gui.add_dropdown("Metric", tuple(SLIDER))
             order = gui.add_dropdown("Order", tuple(ORDERS), hint="Worst first: lowest Jaccard, largest distances")
             limit = gui.add_checkbox("Metric range", False, hint="Keep objects whose mean lies in the range below")
@@ -248,36 +269,78 @@ def build_controls(gui: viser.GuiApi, tab: viser.GuiTabHandle, pipeline_tab: vis
             obj = gui.add_dropdown("Object", (NO_OBJECT,), hint="Choose an object to show its first view")
         with gui.add_folder("View"):
             view = gui.add_dropdown("View", (NO_VIEW,))
-            step = gui.add_button_group("Step", tuple(STEPS),
-                                        hint="Keys: N / P next / previous view, Shift+N / Shift+P object")
+            step = gui.add_button_group(
+                "Step", tuple(STEPS), hint="Keys: N / P next / previous view, Shift+N / Shift+P object"
+            )
             details = gui.add_markdown("_Choose an object._")
             # Off by default: a hand is as large as the object and hides the shapes being compared.
-            show_grasps = gui.add_checkbox("Show best grasp", False,
-                                           hint="Hands of each completion's best planned grasp (blue) and of its "
-                                                "execution on the true object (red)")
-            open_pipeline = gui.add_button("Open in pipeline", icon=viser.Icon.PLAYER_PLAY,
-                                           hint="Send this view's partial points to the Pipeline tab to complete "
-                                                "and grasp them yourself")
+            show_grasps = gui.add_checkbox(
+                "Show best grasp",
+                False,
+                hint="Hands of each completion's best planned grasp (blue) and of its "
+                "execution on the true object (red)",
+            )
+            open_pipeline = gui.add_button(
+                "Open in pipeline",
+                icon=viser.Icon.PLAYER_PLAY,
+                hint="Send this view's partial points to the Pipeline tab to complete and grasp them yourself",
+            )
         with gui.add_folder("Export"):
             export_kind = gui.add_dropdown("Mesh", KINDS, initial_value="Ours-fast")
             export_format = gui.add_dropdown("Format", MESH_FORMATS)
-            export_frame = gui.add_dropdown("Frame", ("camera", "object"),
-                                            hint="camera: the view's optical frame (as stored); object: the "
-                                                 "object's own frame")
+            export_frame = gui.add_dropdown(
+                "Frame",
+                ("camera", "object"),
+                hint="camera: the view's optical frame (as stored); object: the object's own frame",
+            )
             export_mesh = gui.add_button("Mesh (full resolution)", icon=viser.Icon.DOWNLOAD)
             export_grasps = gui.add_button("Grasps of this method (JSON)", icon=viser.Icon.DOWNLOAD)
             export_view_csv = gui.add_button("View metrics (CSV)", icon=viser.Icon.DOWNLOAD)
-            export_index_csv = gui.add_button("Index (CSV)", icon=viser.Icon.DOWNLOAD,
-                                              hint="The objects of the index: split, source, size, views, "
-                                                   "mean metrics of every method")
-            export_rows_csv = gui.add_button("Metrics of the index's views (CSV)", icon=viser.Icon.DOWNLOAD,
-                                             hint="Every view of the objects in the index, all methods")
+            export_index_csv = gui.add_button(
+                "Index (CSV)",
+                icon=viser.Icon.DOWNLOAD,
+                hint="The objects of the index: split, source, size, views, mean metrics of every method",
+            )
+            export_rows_csv = gui.add_button(
+                "Metrics of the index's views (CSV)",
+                icon=viser.Icon.DOWNLOAD,
+                hint="Every view of the objects in the index, all methods",
+            )
             export_tables = gui.add_button("Tables I-IV (markdown)", icon=viser.Icon.DOWNLOAD)
         with gui.add_folder("Summary", expand_by_default=False):
             summary = gui.add_markdown("")
         with gui.add_folder("Per-object bars", expand_by_default=False) as bars_folder:
             bars_note = gui.add_markdown("_Drawing..._")
-    return DatasetControls(status, progress, show, search, split, with_results, method, metric, order, limit, rng,
-                           index, obj, view, step, details, show_grasps, open_pipeline, export_kind, export_format,
-                           export_frame, export_mesh, export_grasps, export_view_csv, export_index_csv,
-                           export_rows_csv, export_tables, summary, bars_folder, bars_note, pipeline_note)
+    return DatasetControls(
+        status,
+        progress,
+        show,
+        search,
+        split,
+        with_results,
+        method,
+        metric,
+        order,
+        limit,
+        rng,
+        index,
+        obj,
+        view,
+        step,
+        details,
+        show_grasps,
+        open_pipeline,
+        export_kind,
+        export_format,
+        export_frame,
+        export_mesh,
+        export_grasps,
+        export_view_csv,
+        export_index_csv,
+        export_rows_csv,
+        export_tables,
+        summary,
+        bars_folder,
+        bars_note,
+        pipeline_note,
+    )

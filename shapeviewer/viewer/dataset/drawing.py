@@ -40,7 +40,7 @@ HandMesh = tuple[str, np.ndarray, np.ndarray, tuple[int, int, int], float]
 def points_colors(depth: np.ndarray) -> np.ndarray:
     """uint8 RGB (N, 3) of the partial view's colour, light for points near the sensor, dark for far ones."""
     d = np.asarray(depth, dtype=np.float64)
-    lo, hi = (np.percentile(d, [2, 98]) if len(d) else (0.0, 1.0))
+    lo, hi = np.percentile(d, [2, 98]) if len(d) else (0.0, 1.0)
     x = np.clip((d - lo) / max(hi - lo, 1e-6), 0.0, 1.0)[:, None]
     near, far = np.array([120, 185, 255]), np.array([20, 60, 150])
     return (near + (far - near) * x).astype(np.uint8)
@@ -52,8 +52,10 @@ def decimate(mesh: trimesh.Trimesh, max_faces: int = DISPLAY_MAX_FACES) -> trime
         return mesh
     import open3d as o3d
 
-    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
-                                  o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)))
+    m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
+        o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)),
+    )
     m = m.simplify_quadric_decimation(target_number_of_triangles=int(max_faces))
     return trimesh.Trimesh(np.asarray(m.vertices), np.asarray(m.triangles), process=False)
 
@@ -88,8 +90,9 @@ class DisplayMeshes:
         return value
 
 
-def best_grasp_hands(store: ResultsStore, info: ViewInfo, grasps: list[GraspSummary],
-                     layout: ViewLayout) -> list[HandMesh]:
+def best_grasp_hands(
+    store: ResultsStore, info: ViewInfo, grasps: list[GraspSummary], layout: ViewLayout
+) -> list[HandMesh]:
     """The hands of each completion's best planned grasp (blue) and of its execution on the true
     object (red), in their columns. A grasp file that cannot be read is skipped with a warning:
     the labels still show its summary."""
@@ -117,8 +120,15 @@ def best_grasp_hands(store: ResultsStore, info: ViewInfo, grasps: list[GraspSumm
         for tag, state, (color, opacity) in states:
             mesh = hand_mesh(hand, [state.joints[n] for n in hand.joint_names])
             T = T_disp_world @ np.asarray(state.T_world_palm)
-            hands.append((f"{ROOT}/grasp_{g.method}_{tag}", transform_points(T, mesh.vertices).astype(np.float32),
-                          np.asarray(mesh.faces, np.int32), color, opacity))
+            hands.append(
+                (
+                    f"{ROOT}/grasp_{g.method}_{tag}",
+                    transform_points(T, mesh.vertices).astype(np.float32),
+                    np.asarray(mesh.faces, np.int32),
+                    color,
+                    opacity,
+                )
+            )
     return hands
 
 
@@ -131,39 +141,90 @@ class DatasetScene:
         self.nodes: list[str] = []  # names of the drawn view's nodes
         self._saved_cameras: dict[int, tuple] = {}  # client id -> (fov, up, position, look_at) to restore
 
-    def draw(self, layout: ViewLayout, kinds: tuple[str, ...], items: dict[str, tuple[np.ndarray, np.ndarray | None]],
-             labels: dict[str, str], hands: list[HandMesh]) -> None:
+    def draw(
+        self,
+        layout: ViewLayout,
+        kinds: tuple[str, ...],
+        items: dict[str, tuple[np.ndarray, np.ndarray | None]],
+        labels: dict[str, str],
+        hands: list[HandMesh],
+    ) -> None:
         """Replace the drawn view: a floor, each of ``kinds`` in its column (``items``: camera-frame
         ``(vertices, faces)``, faces None for points) under its label, the sensor, and ``hands``."""
         self.clear()
         scene = self.server.scene
-        self._add(scene.add_grid, f"{ROOT}/floor", width=layout.spacing * (len(kinds) + 0.4),
-                  height=layout.spacing * 1.6, plane="xy", cell_size=0.05, section_size=layout.spacing,
-                  plane_color=(236, 232, 224), plane_opacity=0.5, shadow_opacity=0.0, cell_color=(215, 210, 200),
-                  section_color=(190, 185, 175))
+        self._add(
+            scene.add_grid,
+            f"{ROOT}/floor",
+            width=layout.spacing * (len(kinds) + 0.4),
+            height=layout.spacing * 1.6,
+            plane="xy",
+            cell_size=0.05,
+            section_size=layout.spacing,
+            plane_color=(236, 232, 224),
+            plane_opacity=0.5,
+            shadow_opacity=0.0,
+            cell_color=(215, 210, 200),
+            section_color=(190, 185, 175),
+        )
         for kind in kinds:
             if kind in items:
                 verts, faces = items[kind]
                 pts = transform_points(layout.T_display_cam[kind], verts).astype(np.float32)
                 if faces is None:
                     # Shaded by depth from the sensor (near light, far dark): a flat colour hides the shell's shape.
-                    self._add(scene.add_point_cloud, f"{ROOT}/{kind}", pts, points_colors(verts[:, 2]),
-                              point_size=POINT_SIZE, precision="float32", point_shading="flat")
+                    self._add(
+                        scene.add_point_cloud,
+                        f"{ROOT}/{kind}",
+                        pts,
+                        points_colors(verts[:, 2]),
+                        point_size=POINT_SIZE,
+                        precision="float32",
+                        point_shading="flat",
+                    )
                 else:
-                    self._add(scene.add_mesh_simple, f"{ROOT}/{kind}", pts, faces, color=COLORS[kind],
-                              cast_shadow=False, receive_shadow=False, flat_shading=False)
-            self._add(scene.add_label, f"{ROOT}/label_{kind}", labels[kind],
-                      position=layout.columns[kind] + [0.0, 0.0, layout.top + 0.12 * layout.spacing],
-                      anchor="bottom-center", font_screen_scale=0.8)
+                    self._add(
+                        scene.add_mesh_simple,
+                        f"{ROOT}/{kind}",
+                        pts,
+                        faces,
+                        color=COLORS[kind],
+                        cast_shadow=False,
+                        receive_shadow=False,
+                        flat_shading=False,
+                    )
+            self._add(
+                scene.add_label,
+                f"{ROOT}/label_{kind}",
+                labels[kind],
+                position=layout.columns[kind] + [0.0, 0.0, layout.top + 0.12 * layout.spacing],
+                anchor="bottom-center",
+                font_screen_scale=0.8,
+            )
         if "points" in items:
             kinect = Intrinsics.kinect()  # the evaluation renders its views with the Kinect's intrinsics
-            self._add(scene.add_camera_frustum, f"{ROOT}/sensor", fov=kinect.vertical_fov, aspect=kinect.aspect,
-                      scale=0.12 * layout.spacing, thickness=0.004 * layout.spacing, color=(60, 60, 60),
-                      wxyz=viser.transforms.SO3.from_matrix(layout.sensor_rotation).wxyz,
-                      position=layout.sensor_position)
+            self._add(
+                scene.add_camera_frustum,
+                f"{ROOT}/sensor",
+                fov=kinect.vertical_fov,
+                aspect=kinect.aspect,
+                scale=0.12 * layout.spacing,
+                thickness=0.004 * layout.spacing,
+                color=(60, 60, 60),
+                wxyz=viser.transforms.SO3.from_matrix(layout.sensor_rotation).wxyz,
+                position=layout.sensor_position,
+            )
         for name, vertices, faces, color, opacity in hands:
-            self._add(scene.add_mesh_simple, name, vertices, faces, color=color, opacity=opacity, cast_shadow=False,
-                      receive_shadow=False)
+            self._add(
+                scene.add_mesh_simple,
+                name,
+                vertices,
+                faces,
+                color=color,
+                opacity=opacity,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
 
     def _add(self, make: Callable[..., viser.SceneNodeHandle], name: str, *args, **kwargs) -> None:
         make(name, *args, **kwargs)
@@ -184,7 +245,7 @@ class DatasetScene:
 
     def aspect(self, client: viser.ClientHandle | None) -> float:
         """Canvas width / height of ``client`` (default: the first that reported its camera)."""
-        for c in ([client] if client is not None else list(self.server.get_clients().values())):
+        for c in [client] if client is not None else list(self.server.get_clients().values()):
             try:
                 return float(c.camera.aspect)
             except (AssertionError, AttributeError):  # no camera reported yet
@@ -199,8 +260,12 @@ class DatasetScene:
                 with c.atomic():
                     if c.client_id not in self._saved_cameras:
                         cam = c.camera
-                        self._saved_cameras[c.client_id] = (cam.fov, tuple(cam.up_direction), tuple(cam.position),
-                                                            tuple(cam.look_at))
+                        self._saved_cameras[c.client_id] = (
+                            cam.fov,
+                            tuple(cam.up_direction),
+                            tuple(cam.position),
+                            tuple(cam.look_at),
+                        )
                     c.camera.fov = fov
                     c.camera.up_direction = (0.0, 0.0, 1.0)
                     c.camera.position = layout.camera_position

@@ -13,9 +13,16 @@ from ...evaluation.results import GraspSummary, ObjectSummary, ResultsStore, Vie
 from .summary import TITLES
 
 
-def export_bytes(store: ResultsStore | None, objects: list[ObjectSummary], info: ViewInfo | None,
-                 grasps: list[GraspSummary], what: str, kind: str | None = None, mesh_format: str = "ply",
-                 frame: str = "camera") -> tuple[str, bytes]:
+def export_bytes(
+    store: ResultsStore | None,
+    objects: list[ObjectSummary],
+    info: ViewInfo | None,
+    grasps: list[GraspSummary],
+    what: str,
+    kind: str | None = None,
+    mesh_format: str = "ply",
+    frame: str = "camera",
+) -> tuple[str, bytes]:
     """``(file name, content)`` of an export of ``store``.
 
     Args:
@@ -62,7 +69,8 @@ def export_bytes(store: ResultsStore | None, objects: list[ObjectSummary], info:
     try:
         if kind == "points":
             return f"{stem}__points_{frame}.ply", export.points_ply_bytes(
-                store.load_points(info.object, info.view), None, out_frame, T)
+                store.load_points(info.object, info.view), None, out_frame, T
+            )
         mesh = store.load_mesh(info.object, info.view, kind)
     except KeyError:
         raise ValueError(f"This view has no {TITLES.get(kind, kind).lower()} file.") from None

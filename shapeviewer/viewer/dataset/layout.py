@@ -56,8 +56,14 @@ class ViewLayout:
     sensor_rotation: np.ndarray
 
 
-def layout_view(T_cam_obj: np.ndarray, truth_cam: np.ndarray, extents_cam: dict[str, np.ndarray],
-                kinds: tuple[str, ...], aspect: float = DEFAULT_ASPECT, fov: float = DATASET_FOV) -> ViewLayout:
+def layout_view(
+    T_cam_obj: np.ndarray,
+    truth_cam: np.ndarray,
+    extents_cam: dict[str, np.ndarray],
+    kinds: tuple[str, ...],
+    aspect: float = DEFAULT_ASPECT,
+    fov: float = DATASET_FOV,
+) -> ViewLayout:
     """Lay out a view's items in one row, the unseen side towards the camera.
 
     Args:
@@ -108,5 +114,13 @@ def layout_view(T_cam_obj: np.ndarray, truth_cam: np.ndarray, extents_cam: dict[
     centre = np.array([0.0, 0.0, (hi[2] - lo[2]) / 2])
     ray = sensor_common - centre
     sensor_pos = columns.get("points", np.zeros(3)) + centre + ray / np.linalg.norm(ray) * 0.55 * spacing
-    return ViewLayout(T_display_cam, columns, top, spacing, look_at + distance * direction, look_at, sensor_pos,
-                      T_common[:3, :3].copy())
+    return ViewLayout(
+        T_display_cam,
+        columns,
+        top,
+        spacing,
+        look_at + distance * direction,
+        look_at,
+        sensor_pos,
+        T_common[:3, :3].copy(),
+    )

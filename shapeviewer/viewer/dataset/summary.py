@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from ...evaluation.records import METHODS
 from ...evaluation.results import (
     HIGHER_IS_BETTER,
     METRIC_TITLES,
@@ -20,16 +21,28 @@ from ...evaluation.results import (
     ObjectSummary,
     ViewInfo,
 )
-from ...evaluation.records import METHODS
 from ...evaluation.tables import SHORT_METHOD, fmt, fmt_share
 from ...evaluation.viewsets import SET_TITLES
 
-TITLES = {"truth": "Ground truth", "points": "Partial view", "Partial": "Partial", "Mirror": "Mirror", "Hull": "Hull",
-          "Ours-fast": "Ours (fast)", "Ours-detailed": "Ours (detailed)"}
+TITLES = {
+    "truth": "Ground truth",
+    "points": "Partial view",
+    "Partial": "Partial",
+    "Mirror": "Mirror",
+    "Hull": "Hull",
+    "Ours-fast": "Ours (fast)",
+    "Ours-detailed": "Ours (detailed)",
+}
 # Partial and Mirror keep the pipeline tab's baseline colours; ours are warm, the truth neutral.
-COLORS = {"truth": (150, 175, 150), "points": (40, 110, 220), "Partial": (160, 160, 160), "Mirror": (110, 150, 215),
-          "Hull": (150, 120, 190),
-          "Ours-fast": (240, 150, 60), "Ours-detailed": (205, 95, 45)}
+COLORS = {
+    "truth": (150, 175, 150),
+    "points": (40, 110, 220),
+    "Partial": (160, 160, 160),
+    "Mirror": (110, 150, 215),
+    "Hull": (150, 120, 190),
+    "Ours-fast": (240, 150, 60),
+    "Ours-detailed": (205, 95, 45),
+}
 INDEX_ROWS = 12  # rows of the index table in the panel
 BARS_OBJECTS = 25  # objects in the per-object chart
 # Short column titles for the narrow panel.
@@ -48,8 +61,11 @@ def grasp_label(g: GraspSummary) -> str:
     """A grasp summary's label lines: planned vs executed joint (deg) and pose (mm) errors, lift successes."""
     if g.error:
         return "grasps failed"
-    lifted = (f"lifted {round(g.lift_success * g.n)}/{g.n}" if g.n and 0 <= g.lift_success <= 1
-              else f"lift {fmt_share(g.lift_success, 0)}")
+    lifted = (
+        f"lifted {round(g.lift_success * g.n)}/{g.n}"
+        if g.n and 0 <= g.lift_success <= 1
+        else f"lift {fmt_share(g.lift_success, 0)}"
+    )
     return f"grasp {fmt(g.joint_error_deg, 1)}° · {fmt(g.pose_error_mm, 1)} mm\n{lifted}"
 
 
@@ -71,7 +87,8 @@ def object_label(o: ObjectSummary, method: str, metric: str) -> str:
     """An object's entry in the Object dropdown: name, number of views, ``method``'s mean ``metric``."""
     v = o.mean(method, metric)
     return f"{o.name} · {o.views} view{'s' if o.views != 1 else ''}" + (
-        "" if math.isnan(v) else f" · {SHORT[metric]} {fmt(v, 1 if 'mm' in metric else 2)}")
+        "" if math.isnan(v) else f" · {SHORT[metric]} {fmt(v, 1 if 'mm' in metric else 2)}"
+    )
 
 
 def view_label(info: ViewInfo) -> str:
@@ -82,8 +99,9 @@ def view_label(info: ViewInfo) -> str:
 def status_markdown(counts: dict[str, int], root: str, building: bool) -> str:
     """The tab's status line: what the store at ``root`` holds (``ResultsStore.counts``), unreadable
     files, and whether the sample store is being built."""
-    text = (f"**{counts['views']}** views of **{counts['objects']}** objects · {counts['grasps']} grasp results  \n"
-            f"`{root}`")
+    text = (
+        f"**{counts['views']}** views of **{counts['objects']}** objects · {counts['grasps']} grasp results  \n`{root}`"
+    )
     if not counts["views"] and not building:
         text += "  \nNo views yet: fill it with `shapeviewer evaluate --out DIR`."
     if counts["skipped"]:
@@ -95,6 +113,7 @@ def status_markdown(counts: dict[str, int], root: str, building: bool) -> str:
 
 def worst_first(objects: list[ObjectSummary], method: str, metric: str) -> list[ObjectSummary]:
     """``objects`` ordered by ``method``'s mean ``metric``, worst first; objects without it last."""
+
     def key(o: ObjectSummary) -> tuple:
         v = o.mean(method, metric)
         if math.isnan(v):
@@ -104,35 +123,44 @@ def worst_first(objects: list[ObjectSummary], method: str, metric: str) -> list[
     return sorted(objects, key=key)
 
 
-def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selected: str | None,
-                   total: int) -> str:
+def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selected: str | None, total: int) -> str:
     """The first rows of the filtered index as a markdown table (the selected object in bold)."""
     if not objects:
         return "_No object matches._"
-    head = (f"{len(objects)} of {total} objects · size = longest side · means of **{method}**  \n"
-            f"| object | split | cm | views | {SHORT.get(metric, metric[:4])} |\n|---|---|---:|:---:|---:|")
+    head = (
+        f"{len(objects)} of {total} objects · size = longest side · means of **{method}**  \n"
+        f"| object | split | cm | views | {SHORT.get(metric, metric[:4])} |\n|---|---|---:|:---:|---:|"
+    )
     rows = []
     for o in objects[:INDEX_ROWS]:
         name = f"**{o.name}**" if o.name == selected else o.name
         split = "holdout" if o.split == "holdout_model" else "train"
         size = "?" if any(math.isnan(x) for x in o.extents) else f"{100 * max(o.extents):.0f}"
-        rows.append(f"| {name} | {split} | {size} | {o.views} | "
-                    f"{fmt(o.mean(method, metric), 1 if 'mm' in metric else 2)} |")
+        rows.append(
+            f"| {name} | {split} | {size} | {o.views} | {fmt(o.mean(method, metric), 1 if 'mm' in metric else 2)} |"
+        )
     more = [f"| _… {len(objects) - INDEX_ROWS} more_ | | | | |"] if len(objects) > INDEX_ROWS else []
     return "\n".join([head, *rows, *more])
 
 
-def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[CompletionResult],
-                  grasps: list[GraspSummary]) -> str:
+def view_markdown(
+    o: ObjectSummary, info: ViewInfo, completions: list[CompletionResult], grasps: list[GraspSummary]
+) -> str:
     """The chosen view's object facts, per-method metrics table and grasp table."""
     size = " × ".join(f"{100 * x:.1f}" for x in o.extents) if not any(math.isnan(x) for x in o.extents) else "?"
-    lines = [f"**{o.name}** · view {info.view} · {SET_TITLES.get(info.view_set, info.view_set)}  \n"
-             f"{o.source} · {'holdout model' if o.split == 'holdout_model' else 'training model'} · {size} cm",
-             "", "| method | J ↑ | H mm ↓ | G ↓ | s |", "|---|---:|---:|---:|---:|"]
+    lines = [
+        f"**{o.name}** · view {info.view} · {SET_TITLES.get(info.view_set, info.view_set)}  \n"
+        f"{o.source} · {'holdout model' if o.split == 'holdout_model' else 'training model'} · {size} cm",
+        "",
+        "| method | J ↑ | H mm ↓ | G ↓ | s |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for c in completions:
         if c.ok:
-            lines.append(f"| {c.method} | {fmt(c.jaccard, 3)} | {fmt(c.hausdorff_mean_mm, 1)} | {fmt(c.geodesic, 3)} | "
-                         f"{fmt(c.seconds, 2)} |")
+            lines.append(
+                f"| {c.method} | {fmt(c.jaccard, 3)} | {fmt(c.hausdorff_mean_mm, 1)} | {fmt(c.geodesic, 3)} | "
+                f"{fmt(c.seconds, 2)} |"
+            )
         else:
             lines.append(f"| {c.method} | failed | | | |")
     failed = [f"{c.method}: {c.error}" for c in completions if not c.ok]
@@ -140,23 +168,35 @@ def view_markdown(o: ObjectSummary, info: ViewInfo, completions: list[Completion
         lines += ["", *(f"_{e}_  " for e in failed)]
     if grasps:
         hands = sorted({g.hand for g in grasps})
-        lines += ["", f"**Grasps** ({', '.join(hands)}): planned on the completion, executed on the truth; "
-                  "errors planned vs executed, share lifted", "",
-                  "| on | n | joint° | mm | lift |", "|---|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            f"**Grasps** ({', '.join(hands)}): planned on the completion, executed on the truth; "
+            "errors planned vs executed, share lifted",
+            "",
+            "| on | n | joint° | mm | lift |",
+            "|---|---:|---:|---:|---:|",
+        ]
         for g in grasps:
             on = SHORT.get(g.method, g.method) + (f" ({g.hand})" if len(hands) > 1 else "")
             if g.error:
                 lines.append(f"| {on} | failed | | | |")
             else:
-                lines.append(f"| {on} | {g.n} | {fmt(g.joint_error_deg, 1)} | {fmt(g.pose_error_mm, 1)} | "
-                             f"{fmt_share(g.lift_success, 0)} |")
+                lines.append(
+                    f"| {on} | {g.n} | {fmt(g.joint_error_deg, 1)} | {fmt(g.pose_error_mm, 1)} | "
+                    f"{fmt_share(g.lift_success, 0)} |"
+                )
     else:
         lines += ["", "_No grasp results for this view._"]
     return "\n".join(lines)
 
 
-def bars_png(objects: list[ObjectSummary], metric: str, methods: tuple[str, ...] = METHODS,
-             limit: int = BARS_OBJECTS, width_px: int = 420) -> bytes | None:
+def bars_png(
+    objects: list[ObjectSummary],
+    metric: str,
+    methods: tuple[str, ...] = METHODS,
+    limit: int = BARS_OBJECTS,
+    width_px: int = 420,
+) -> bytes | None:
     """Per-object bars of ``metric`` (one bar per method) for the first ``limit`` objects, as PNG bytes."""
     rows = [o for o in objects if any(not math.isnan(o.mean(m, metric)) for m in methods)][:limit]
     if not rows:
@@ -174,12 +214,18 @@ def bars_png(objects: list[ObjectSummary], metric: str, methods: tuple[str, ...]
     y = np.arange(len(rows))
     for k, m in enumerate(methods):
         vals = [o.mean(m, metric) for o in rows]
-        ax.barh(y + (k - (n - 1) / 2) * h, [0 if math.isnan(v) else v for v in vals], height=h,
-                color=np.asarray(COLORS[m]) / 255, label=m)
+        ax.barh(
+            y + (k - (n - 1) / 2) * h,
+            [0 if math.isnan(v) else v for v in vals],
+            height=h,
+            color=np.asarray(COLORS[m]) / 255,
+            label=m,
+        )
     ax.set_yticks(y, [o.name for o in rows], fontsize=9)
     ax.invert_yaxis()
-    ax.set_xlabel(METRIC_TITLES[metric] + (", higher is better" if HIGHER_IS_BETTER[metric] else ", lower is better"),
-                  fontsize=9)
+    ax.set_xlabel(
+        METRIC_TITLES[metric] + (", higher is better" if HIGHER_IS_BETTER[metric] else ", lower is better"), fontsize=9
+    )
     ax.tick_params(axis="x", labelsize=8)
     ax.legend(fontsize=8, ncols=2, loc="lower left", bbox_to_anchor=(0.0, 1.0), frameon=False)
     ax.grid(axis="x", alpha=0.3)
@@ -191,5 +237,7 @@ def bars_png(objects: list[ObjectSummary], metric: str, methods: tuple[str, ...]
 
 def bars_caption(method: str, metric: str) -> str:
     """The line above the per-object bars."""
-    return (f"{METRIC_TITLES[metric]}, mean per object, worst {method} first "
-            f"(the first {BARS_OBJECTS} objects of the index).")
+    return (
+        f"{METRIC_TITLES[metric]}, mean per object, worst {method} first "
+        f"(the first {BARS_OBJECTS} objects of the index)."
+    )

@@ -72,8 +72,15 @@ class DatasetTab:
         weights: CNN weights for building the sample store (None: the shipped model).
     """
 
-    def __init__(self, server: viser.ViserServer, tab: viser.GuiTabHandle, pipeline_tab: viser.GuiTabHandle,
-                 results: str | Path | None, hooks: DatasetHooks, weights: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        tab: viser.GuiTabHandle,
+        pipeline_tab: viser.GuiTabHandle,
+        results: str | Path | None,
+        hooks: DatasetHooks,
+        weights: str | Path | None = None,
+    ) -> None:
         self.server = server
         self.hooks = hooks
         self.weights = weights
@@ -172,8 +179,9 @@ class DatasetTab:
             if self.shown is None:
                 first = next((o.name for o in self.objects if o.views), None)
                 if first is None:
-                    self.hooks.notify(client, "Nothing to show", "No object in the index has a view with results.",
-                                      "yellow")
+                    self.hooks.notify(
+                        client, "Nothing to show", "No object in the index has a view with results.", "yellow"
+                    )
                     return
                 self.select(first, None, client)
                 return
@@ -205,24 +213,40 @@ class DatasetTab:
             self.leave(client)
         ok = self.hooks.open_capture(capture, client)
         if ok:
-            self.hooks.notify(client, "Opened in the Pipeline tab",
-                              f"{info.object} view {info.view}: switch to the Pipeline tab and click the segment to "
-                              "complete it.", "green")
+            self.hooks.notify(
+                client,
+                "Opened in the Pipeline tab",
+                f"{info.object} view {info.view}: switch to the Pipeline tab and click the segment to complete it.",
+                "green",
+            )
         return ok
 
-    def export_bytes(self, what: str, kind: str | None = None, mesh_format: str = "ply",
-                     frame: str = "camera") -> tuple[str, bytes]:
+    def export_bytes(
+        self, what: str, kind: str | None = None, mesh_format: str = "ply", frame: str = "camera"
+    ) -> tuple[str, bytes]:
         """``(file name, content)`` of an export of the store, the index or the shown view (full
         resolution); see :func:`~.exports.export_bytes`. Raises ValueError for the user."""
         shown = self.shown
-        return export_bytes(self.store, self.objects, None if shown is None else shown.info,
-                            [] if shown is None else shown.grasps, what, kind, mesh_format, frame)
+        return export_bytes(
+            self.store,
+            self.objects,
+            None if shown is None else shown.info,
+            [] if shown is None else shown.grasps,
+            what,
+            kind,
+            mesh_format,
+            frame,
+        )
 
     def download(self, client: viser.ClientHandle | None, what: str) -> None:
         """Send export ``what`` (with the Export folder's choices) to ``client``'s browser."""
         c = self.c
-        send_download(client, lambda: self.export_bytes(what, c.export_kind.value, c.export_format.value,
-                                                        c.export_frame.value), self.hooks.notify, (ValueError, OSError))
+        send_download(
+            client,
+            lambda: self.export_bytes(what, c.export_kind.value, c.export_format.value, c.export_frame.value),
+            self.hooks.notify,
+            (ValueError, OSError),
+        )
 
     def refresh(self) -> None:
         """Re-read the store (new views of a running evaluation) and redraw the index if it changed."""
@@ -278,8 +302,10 @@ class DatasetTab:
 
     def _open(self, results: str | Path | None) -> None:
         if results is None:
-            self.c.status.content = ("_No results store._ Start the viewer with `--results DIR` (a folder written by "
-                                     "`shapeviewer evaluate`).")
+            self.c.status.content = (
+                "_No results store._ Start the viewer with `--results DIR` (a folder written by "
+                "`shapeviewer evaluate`)."
+            )
             return
         if results == DEFAULT:
             root = sample_store_dir(self.weights)
@@ -312,9 +338,12 @@ class DatasetTab:
             # Keep the shown object choosable even when the filters hide it.
             objects = [next((o for o in self.objects if o.name == shown.info.object), shown.object), *objects]
         views = self.store.views(shown.info.object) if shown is not None else []
-        self.c.sync_selectors({object_label(o, method, metric): o.name for o in objects},
-                              None if shown is None else shown.info.object, {view_label(v): v.view for v in views},
-                              None if shown is None else shown.info.view)
+        self.c.sync_selectors(
+            {object_label(o, method, metric): o.name for o in objects},
+            None if shown is None else shown.info.object,
+            {view_label(v): v.view for v in views},
+            None if shown is None else shown.info.view,
+        )
 
     def _show(self, info: ViewInfo, client: viser.ClientHandle | None) -> None:
         """Read view ``info``'s records and files, lay them out and draw them; aim the cameras."""
@@ -325,13 +354,19 @@ class DatasetTab:
         grasps = self.store.grasps(name, info.view)
         by_method = {c.method: c for c in completions}
         files = {"truth": info.truth, "points": info.points, **{m: c.mesh for m, c in by_method.items()}}
-        items = {kind: self.meshes.get(self.store.path(files[kind]), kind == "points")
-                 for kind in KINDS if files.get(kind)}
+        items = {
+            kind: self.meshes.get(self.store.path(files[kind]), kind == "points") for kind in KINDS if files.get(kind)
+        }
         if "truth" not in items:
             raise ValueError("the view has no ground-truth mesh file")
         kinds = tuple(k for k in KINDS if k in items or k in by_method)
-        layout = layout_view(self.store.T_cam_obj(name, info.view), items["truth"][0],
-                             {k: v[0] for k, v in items.items()}, kinds, self.scene.aspect(client))
+        layout = layout_view(
+            self.store.T_cam_obj(name, info.view),
+            items["truth"][0],
+            {k: v[0] for k, v in items.items()},
+            kinds,
+            self.scene.aspect(client),
+        )
         labels = {k: column_label(k, len(items[k][0]) if k in items else 0, by_method.get(k), grasps) for k in kinds}
         hands = best_grasp_hands(self.store, info, grasps, layout) if self.c.show_grasps.value else []
         # Show the root before adding to it: labels added under a hidden frame stay hidden in the
@@ -343,8 +378,9 @@ class DatasetTab:
         self._activate(layout)
         self.server.flush()
         self.shown.seconds = time.perf_counter() - t0
-        self.c.index.content = index_markdown(self.objects, self.c.method.value, self.c.metric.value, name,
-                                              self.total_objects)
+        self.c.index.content = index_markdown(
+            self.objects, self.c.method.value, self.c.metric.value, name, self.total_objects
+        )
 
     def _activate(self, layout: ViewLayout | None) -> None:
         """Show the dataset root (hiding the pipeline) and point every browser camera at ``layout``'s row."""

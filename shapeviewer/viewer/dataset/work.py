@@ -105,8 +105,15 @@ class SampleBuild:
         closed: set when the tab shuts down (the build stops at its next step).
     """
 
-    def __init__(self, server: viser.ViserServer, controls: DatasetControls, refresh: Callable[[], None],
-                 idle_status: Callable[[], str], failed: Callable[[str], None], closed: threading.Event) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        controls: DatasetControls,
+        refresh: Callable[[], None],
+        idle_status: Callable[[], str],
+        failed: Callable[[str], None],
+        closed: threading.Event,
+    ) -> None:
         self.server = server
         self.c = controls
         self.refresh = refresh
@@ -164,10 +171,13 @@ class SampleBuild:
         self.c.status.content = self.idle_status()
 
     def _note_body(self) -> str:
-        return (f"The Dataset tab is evaluating a few sample views in the background (first run only): "
-                f"{self._step}. Views appear in the tab as they finish.")
+        return (
+            f"The Dataset tab is evaluating a few sample views in the background (first run only): "
+            f"{self._step}. Views appear in the tab as they finish."
+        )
 
     def _add_note(self, client: viser.ClientHandle) -> None:
         if self.running and client.client_id not in self._notes:
             self._notes[client.client_id] = client.add_notification(
-                "Dataset tab: building sample results", self._note_body(), loading=True, with_close_button=True)
+                "Dataset tab: building sample results", self._note_body(), loading=True, with_close_button=True
+            )

@@ -20,5 +20,16 @@ from .controller import GraspController, GraspHost
 from .drawing import EXECUTED_COLOR, NO_CLOSURE_COLOR, TRUTH_OPACITY, epsilon_colors, hand_skeleton
 from .state import GraspJob, SegmentGrasps, ground_truth_object, object_mesh_world
 
-__all__ = ["EXECUTED_COLOR", "NO_CLOSURE_COLOR", "TRUTH_OPACITY", "GraspController", "GraspHost", "GraspJob",
-           "SegmentGrasps", "epsilon_colors", "ground_truth_object", "hand_skeleton", "object_mesh_world"]
+__all__ = [
+    "EXECUTED_COLOR",
+    "NO_CLOSURE_COLOR",
+    "TRUTH_OPACITY",
+    "GraspController",
+    "GraspHost",
+    "GraspJob",
+    "SegmentGrasps",
+    "epsilon_colors",
+    "ground_truth_object",
+    "hand_skeleton",
+    "object_mesh_world",
+]

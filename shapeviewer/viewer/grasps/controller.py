@@ -83,9 +83,17 @@ class GraspController:
     # ------------------------------------------------------------------------------------------
     # Jobs
 
-    def plan(self, segment_id: int | None, hand: str = "barrett", method: str = "fast",
-             n_grasps: int = DEFAULT_GRASPS, client: viser.ClientHandle | None = None, wait: bool = True,
-             seed: int = 0, budget_seconds: float | None = None) -> GraspJob | None:
+    def plan(
+        self,
+        segment_id: int | None,
+        hand: str = "barrett",
+        method: str = "fast",
+        n_grasps: int = DEFAULT_GRASPS,
+        client: viser.ClientHandle | None = None,
+        wait: bool = True,
+        seed: int = 0,
+        budget_seconds: float | None = None,
+    ) -> GraspJob | None:
         """Plan ``n_grasps`` grasps with ``hand`` on segment ``segment_id``'s ``method`` mesh.
 
         The mesh is made first when the segment lacks it. Runs in a background thread (``wait``:
@@ -98,16 +106,30 @@ class GraspController:
             raise ValueError(f"unknown mesh {method!r}; choose one of {MESH_KINDS}")
         scene = self.host.scene()
         if scene is None or segment_id is None or segment_id not in scene.segments:
-            self.host.notify(client, "No segment selected", "Click a segment or pick one in the Completion folder, "
-                             "then plan grasps on it.", "yellow")
+            self.host.notify(
+                client,
+                "No segment selected",
+                "Click a segment or pick one in the Completion folder, then plan grasps on it.",
+                "yellow",
+            )
             return None
         n_grasps = int(np.clip(n_grasps, 1, MAX_GRASPS))
-        return self.jobs.start("plan", segment_id, client, wait,
-                               lambda job: self._plan_job(job, scene, segment_id, hand, method, n_grasps, seed,
-                                                          budget_seconds, client))
+        return self.jobs.start(
+            "plan",
+            segment_id,
+            client,
+            wait,
+            lambda job: self._plan_job(job, scene, segment_id, hand, method, n_grasps, seed, budget_seconds, client),
+        )
 
-    def execute(self, segment_id: int | None, indices: Sequence[int] | None, client: viser.ClientHandle | None = None,
-                wait: bool = True, lift: bool = True) -> GraspJob | None:
+    def execute(
+        self,
+        segment_id: int | None,
+        indices: Sequence[int] | None,
+        client: viser.ClientHandle | None = None,
+        wait: bool = True,
+        lift: bool = True,
+    ) -> GraspJob | None:
         """Execute grasps ``indices`` (None: all) of segment ``segment_id`` on its true object, with
         the lift test when ``lift``. Synthetic scenes only: for a real capture (or a segment that is
         no single object) the client is told there is no ground truth and None is returned."""
@@ -126,8 +148,13 @@ class GraspController:
         picked = list(range(len(s.grasps))) if indices is None else [int(i) for i in indices]
         if not picked or not all(0 <= i < len(s.grasps) for i in picked):
             raise ValueError(f"grasp indices {indices} out of range 0..{len(s.grasps) - 1}")
-        return self.jobs.start("execute", segment_id, client, wait,
-                               lambda job: self._execute_job(job, scene, s, picked, truth, lift, client))
+        return self.jobs.start(
+            "execute",
+            segment_id,
+            client,
+            wait,
+            lambda job: self._execute_job(job, scene, s, picked, truth, lift, client),
+        )
 
     def cancel(self) -> bool:
         """Ask the running grasp job to stop; False when none runs."""
@@ -145,12 +172,24 @@ class GraspController:
         self.host.set_status(f"_Grasps: making the {method} mesh of segment {segment_id} first..._")
         mesh = self.host.make_mesh(method, segment_id, client)
         if mesh is None:
-            raise GraspJobError(f"Segment {segment_id} has no {method} mesh to plan on and it could not be made "
-                                "(see the message above).")
+            raise GraspJobError(
+                f"Segment {segment_id} has no {method} mesh to plan on and it could not be made "
+                "(see the message above)."
+            )
         return mesh
 
-    def _plan_job(self, job: GraspJob, scene: LoadedScene, segment_id: int, hand: str, method: str, n_grasps: int,
-                  seed: int, budget_seconds: float | None, client: viser.ClientHandle | None) -> SegmentGrasps | None:
+    def _plan_job(
+        self,
+        job: GraspJob,
+        scene: LoadedScene,
+        segment_id: int,
+        hand: str,
+        method: str,
+        n_grasps: int,
+        seed: int,
+        budget_seconds: float | None,
+        client: viser.ClientHandle | None,
+    ) -> SegmentGrasps | None:
         mesh_cam = self._mesh(segment_id, method, client)
         if job.cancel_event.is_set():
             return None
@@ -160,8 +199,16 @@ class GraspController:
         table = bool(scene.capture.objects) or scene.segmentation.plane_cam is not None
         self.host.set_status(f"_Planning {n_grasps} {hand} grasps on segment {segment_id}..._")
         t0 = time.perf_counter()
-        result = plan(mesh_world, hand=hand, n_grasps=n_grasps, seed=seed, table=table, budget_seconds=budget_seconds,
-                      progress=self.jobs.progress, cancel=job.cancel_event.is_set)
+        result = plan(
+            mesh_world,
+            hand=hand,
+            n_grasps=n_grasps,
+            seed=seed,
+            table=table,
+            budget_seconds=budget_seconds,
+            progress=self.jobs.progress,
+            cancel=job.cancel_event.is_set,
+        )
         seconds = time.perf_counter() - t0
         if result.stats.cancelled or job.cancel_event.is_set():
             self.host.notify(client, "Planning cancelled", f"Segment {segment_id}: no grasps kept.", "yellow")
@@ -178,16 +225,33 @@ class GraspController:
         self.host.show_layer("grasps", True)  # the user asked to see them
         n_fc = sum(g.force_closure for g in s.grasps)
         if s.grasps:
-            self.host.notify(client, "Grasps ready", f"Segment {segment_id}: {len(s.grasps)} {hand} grasps "
-                             f"({n_fc} force closure) on the {method} mesh in {seconds:.1f} s.", "green")
+            self.host.notify(
+                client,
+                "Grasps ready",
+                f"Segment {segment_id}: {len(s.grasps)} {hand} grasps "
+                f"({n_fc} force closure) on the {method} mesh in {seconds:.1f} s.",
+                "green",
+            )
         else:
-            self.host.notify(client, "No grasp found", f"Segment {segment_id}: no {hand} grasp touches the {method} "
-                             "mesh with every finger. Try the other hand or another mesh.", "yellow")
+            self.host.notify(
+                client,
+                "No grasp found",
+                f"Segment {segment_id}: no {hand} grasp touches the {method} "
+                "mesh with every finger. Try the other hand or another mesh.",
+                "yellow",
+            )
         return s
 
-    def _execute_job(self, job: GraspJob, scene: LoadedScene, s: SegmentGrasps, picked: list[int],
-                     truth: tuple[str, trimesh.Trimesh], lift: bool,
-                     client: viser.ClientHandle | None) -> list[ExecutionResult]:
+    def _execute_job(
+        self,
+        job: GraspJob,
+        scene: LoadedScene,
+        s: SegmentGrasps,
+        picked: list[int],
+        truth: tuple[str, trimesh.Trimesh],
+        lift: bool,
+        client: viser.ClientHandle | None,
+    ) -> list[ExecutionResult]:
         name, truth_world = truth
         sid = s.segment_id
         self.host.set_status(f"_Executing {len(picked)} grasp(s) of segment {sid} on {name}..._")
@@ -244,9 +308,17 @@ class GraspController:
         if s is None or not s.grasps:
             raise ValueError("No grasps to export: plan grasps on a segment first.")
         scene = self.host.scene()
-        meta = {"source": scene.capture.source, "segment": s.segment_id, "mesh": s.method, "hand": s.hand,
-                "seed": s.seed, "table": s.table, "T_world_cam": np.asarray(scene.T_world_cam).tolist(),
-                "planning_seconds": s.stats.seconds.get("total"), "ground_truth": s.truth_name}
+        meta = {
+            "source": scene.capture.source,
+            "segment": s.segment_id,
+            "mesh": s.method,
+            "hand": s.hand,
+            "seed": s.seed,
+            "table": s.table,
+            "T_world_cam": np.asarray(scene.T_world_cam).tolist(),
+            "planning_seconds": s.stats.seconds.get("total"),
+            "ground_truth": s.truth_name,
+        }
         stem = f"{scene.name}_seg{s.segment_id}_{s.method}_{s.hand}"
         if fmt == "json":
             return f"{stem}_grasps.json", grasps_to_json(s.grasps, s.executions, meta).encode()
@@ -302,8 +374,9 @@ class GraspController:
 
         @p.plan.on_click
         def _(event: viser.GuiEvent) -> None:
-            self.plan(self.host.selected_segment(), p.hand.value, p.method.value, int(p.count.value), event.client,
-                      wait=False)
+            self.plan(
+                self.host.selected_segment(), p.hand.value, p.method.value, int(p.count.value), event.client, wait=False
+            )
 
         p.cancel.on_click(lambda _event: self.cancel())
 
@@ -326,5 +399,8 @@ class GraspController:
 
         p.execute_all.on_click(lambda event: self.execute(self.current, None, event.client, wait=False))
         for fmt, button in p.exports.items():
-            button.on_click(lambda event, fmt=fmt: send_download(event.client, lambda: self.export(self.current, fmt),
-                                                                 self.host.notify))
+            button.on_click(
+                lambda event, fmt=fmt: send_download(
+                    event.client, lambda: self.export(self.current, fmt), self.host.notify
+                )
+            )

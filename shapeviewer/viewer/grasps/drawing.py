@@ -63,8 +63,10 @@ def hand_skeleton(hand: Hand, joints: Sequence[float]) -> np.ndarray:
     poses = hand.link_poses(joints)
 
     def visual_points(link: str) -> np.ndarray:
-        pts = [g.mesh().vertices @ (poses[link] @ g.T_link_geom)[:3, :3].T + (poses[link] @ g.T_link_geom)[:3, 3]
-               for g in hand.model.visuals.get(link, ())]
+        pts = [
+            g.mesh().vertices @ (poses[link] @ g.T_link_geom)[:3, :3].T + (poses[link] @ g.T_link_geom)[:3, 3]
+            for g in hand.model.visuals.get(link, ())
+        ]
         return np.vstack(pts) if pts else poses[link][None, :3, 3]
 
     palm = visual_points(hand.palm_link)
@@ -140,18 +142,32 @@ class GraspDrawing:
         if s.truth_world is None:
             return
         with self.lock:
-            self.server.scene.add_mesh_simple(f"/grasps/seg_{sid}/truth",
-                                              np.asarray(s.truth_world.vertices, np.float32),
-                                              np.asarray(s.truth_world.faces, np.uint32), color=TRUTH_COLOR,
-                                              opacity=TRUTH_OPACITY, cast_shadow=False, receive_shadow=False)
+            self.server.scene.add_mesh_simple(
+                f"/grasps/seg_{sid}/truth",
+                np.asarray(s.truth_world.vertices, np.float32),
+                np.asarray(s.truth_world.faces, np.uint32),
+                color=TRUTH_COLOR,
+                opacity=TRUTH_OPACITY,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
             hand = get_hand(s.hand)
             for k in range(len(s.executions)) if indices is None else indices:
                 e = s.executions[k]
                 if e is not None:
                     self._draw_hand(sid, k, True, hand, e.T_world_palm, e.joints, EXECUTED_COLOR, EXECUTED_OPACITY)
 
-    def _draw_hand(self, sid: int, k: int, executed: bool, hand: Hand, T_world_palm: np.ndarray,
-                   joints: dict[str, float], color: tuple[int, int, int], opacity: float | None) -> None:
+    def _draw_hand(
+        self,
+        sid: int,
+        k: int,
+        executed: bool,
+        hand: Hand,
+        T_world_palm: np.ndarray,
+        joints: dict[str, float],
+        color: tuple[int, int, int],
+        opacity: float | None,
+    ) -> None:
         """Grasp ``k``'s hand at ``T_world_palm`` (world) with ``joints`` (replacing an earlier drawing
         of it): a palm frame, under it ``hand/<link>`` meshes in the palm frame and, for a planned
         grasp, the ``skeleton`` stick figure; both in ``color``."""
@@ -161,20 +177,36 @@ class GraspDrawing:
             old.frame.remove()
         name = f"/grasps/seg_{sid}/{key}"
         scene = self.server.scene
-        frame = scene.add_frame(name, show_axes=False, position=T_world_palm[:3, 3],
-                                wxyz=viser.transforms.SO3.from_matrix(T_world_palm[:3, :3]).wxyz)
+        frame = scene.add_frame(
+            name,
+            show_axes=False,
+            position=T_world_palm[:3, 3],
+            wxyz=viser.transforms.SO3.from_matrix(T_world_palm[:3, :3]).wxyz,
+        )
         solid = scene.add_frame(f"{name}/hand", show_axes=False)
         q = [joints[n] for n in hand.joint_names]
         parts = [(link, i) for link, geoms in hand.model.visuals.items() for i in range(len(geoms))]
         for (link, i), (mesh, T) in zip(parts, hand_meshes(hand, q)):
             rgb = shade(np.asarray(color), PALM_SHADE) if link == hand.palm_link else tuple(color)
-            scene.add_mesh_simple(f"{name}/hand/{link}" + (f"_{i}" if i else ""), np.asarray(mesh.vertices, np.float32),
-                                  np.asarray(mesh.faces, np.uint32), color=rgb, opacity=opacity, position=T[:3, 3],
-                                  wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz, cast_shadow=False,
-                                  receive_shadow=False)
+            scene.add_mesh_simple(
+                f"{name}/hand/{link}" + (f"_{i}" if i else ""),
+                np.asarray(mesh.vertices, np.float32),
+                np.asarray(mesh.faces, np.uint32),
+                color=rgb,
+                opacity=opacity,
+                position=T[:3, 3],
+                wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
         sticks = hand_skeleton(hand, q)
-        skeleton = None if executed else scene.add_line_segments(
-            f"{name}/skeleton", sticks.astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS)
+        skeleton = (
+            None
+            if executed
+            else scene.add_line_segments(
+                f"{name}/skeleton", sticks.astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS
+            )
+        )
         pick_points = transform_points(T_world_palm, sample_segments(sticks, PICK_SPACING))
         self._hands[(sid, key)] = _HandNodes(frame, solid, skeleton, k, executed, pick_points)
 
@@ -196,6 +228,9 @@ class GraspDrawing:
         """``(index, t)`` of segment ``current``'s grasp whose visible planned hand a world-frame
         click ray hits first, ``t`` metres along the ray; ``(None, inf)`` when it misses them all."""
         with self.lock:
-            shown = {nodes.index: nodes.pick_points for (sid, _key), nodes in self._hands.items()
-                     if sid == current and not nodes.executed and nodes.frame.visible}
+            shown = {
+                nodes.index: nodes.pick_points
+                for (sid, _key), nodes in self._hands.items()
+                if sid == current and not nodes.executed and nodes.frame.visible
+            }
         return first_hit(ray_origin, ray_direction, shown, PICK_TOLERANCE)

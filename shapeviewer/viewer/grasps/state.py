@@ -104,20 +104,21 @@ def ground_truth_object(capture: Capture, segment: Segment) -> tuple[int, float]
 
 def object_mesh_world(obj: SceneObject) -> trimesh.Trimesh:
     """A true object's mesh in the world frame (metres)."""
-    return trimesh.Trimesh(transform_points(obj.T_world_obj, obj.mesh.vertices), np.asarray(obj.mesh.faces),
-                           process=False)
+    return trimesh.Trimesh(
+        transform_points(obj.T_world_obj, obj.mesh.vertices), np.asarray(obj.mesh.faces), process=False
+    )
 
 
 def ground_truth(capture: Capture, segment: Segment) -> tuple[str, trimesh.Trimesh] | str:
     """``(name, world-frame mesh)`` of the true object ``segment`` shows, or a message saying why
     there is none (a real capture; a segment covering several objects)."""
     if not capture.objects:
-        return ("No ground truth: this is a real capture, so there is no true object to execute grasps on. "
-                "Grasps can still be planned, inspected and exported.")
+        return (
+            "No ground truth: this is a real capture, so there is no true object to execute grasps on. "
+            "Grasps can still be planned, inspected and exported."
+        )
     match = ground_truth_object(capture, segment)
     if match is None:
-        return (f"No ground truth for segment {segment.id}: its points do not belong mostly to one "
-                "object of the scene.")
+        return f"No ground truth for segment {segment.id}: its points do not belong mostly to one object of the scene."
     obj = capture.objects[match[0]]
     return obj.name, object_mesh_world(obj)
-

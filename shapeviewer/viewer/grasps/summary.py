@@ -37,8 +37,9 @@ def _lift_text(e: ExecutionResult) -> str:
 
 def grasp_options(s: SegmentGrasps) -> dict[str, int]:
     """The Grasp dropdown's entries for ``s``: ``#<rank>  ε <epsilon>`` -> index in ``s.grasps``."""
-    return {f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)"): k
-            for k, g in enumerate(s.grasps)}
+    return {
+        f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)"): k for k, g in enumerate(s.grasps)
+    }
 
 
 def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | None) -> str:
@@ -47,8 +48,10 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if s is None:
         return NO_PLAN
     n_fc = sum(g.force_closure for g in s.grasps)
-    lines = [f"**Segment {s.segment_id}** · {s.hand} on the {s.method} mesh · **{len(s.grasps)}** grasps "
-             f"({n_fc} force closure) in {s.stats.seconds.get('total', 0.0):.1f} s"]
+    lines = [
+        f"**Segment {s.segment_id}** · {s.hand} on the {s.method} mesh · **{len(s.grasps)}** grasps "
+        f"({n_fc} force closure) in {s.stats.seconds.get('total', 0.0):.1f} s"
+    ]
     if s.grasps:
         best = max(g.epsilon for g in s.grasps)
         lines.append(f"Colour: ε from red (0) to green (ε = {best:.3f}, the best); grey: no force closure.")
@@ -57,10 +60,12 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     done = [e for e in s.executions if e is not None]
     if len(done) > 1:
         lifted = [e.lift.success for e in done if e.lift is not None]
-        lines.append(f"On the ground truth ({s.truth_name}), {len(done)} executed: mean joint error "
-                     f"{np.mean([e.joint_error for e in done]):.2f}°, pose error "
-                     f"{np.mean([e.pose_error for e in done]):.1f} mm"
-                     + (f", lifted {sum(lifted)}/{len(lifted)}" if lifted else ""))
+        lines.append(
+            f"On the ground truth ({s.truth_name}), {len(done)} executed: mean joint error "
+            f"{np.mean([e.joint_error for e in done]):.2f}°, pose error "
+            f"{np.mean([e.pose_error for e in done]):.1f} mm"
+            + (f", lifted {sum(lifted)}/{len(lifted)}" if lifted else "")
+        )
     text = "  \n".join(lines)
     if selected is None or not s.grasps:
         return text
@@ -68,25 +73,35 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     g, e, hand = s.grasps[k], s.executions[k], get_hand(s.hand)
     x, y, z = 1000 * g.position
     a = g.approach
-    text += (f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
-             f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
-             f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})\n\n")
+    text += (
+        f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
+        f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
+        f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})\n\n"
+    )
     header = "| joint | planned |" + (" executed |\n|---|---:|---:|" if e is not None else "\n|---|---:|")
-    rows = [f"| {n} | {_joint_value(hand, n, g.joints[n])} |"
-            + (f" {_joint_value(hand, n, e.joints[n])} |" if e is not None else "") for n in hand.joint_names]
+    rows = [
+        f"| {n} | {_joint_value(hand, n, g.joints[n])} |"
+        + (f" {_joint_value(hand, n, e.joints[n])} |" if e is not None else "")
+        for n in hand.joint_names
+    ]
     text += header + "\n" + "\n".join(rows)
     if e is not None:
-        text += (f"\n\n**On the ground truth** ({s.truth_name}): ε {_epsilon_text(e.epsilon)} · joint error "
-                 f"**{e.joint_error:.2f}°** · pose error **{e.pose_error:.1f} mm** · {_lift_text(e)}"
-                 + ("" if e.start_clear else " · the backed-off start was in collision")
-                 + "  \n_Blue: the hand as executed; gold: the true object; the stick figure: the planned "
-                   "grasp. (The completion's mesh and CNN input layers were switched off to show the object.)_")
+        text += (
+            f"\n\n**On the ground truth** ({s.truth_name}): ε {_epsilon_text(e.epsilon)} · joint error "
+            f"**{e.joint_error:.2f}°** · pose error **{e.pose_error:.1f} mm** · {_lift_text(e)}"
+            + ("" if e.start_clear else " · the backed-off start was in collision")
+            + "  \n_Blue: the hand as executed; gold: the true object; the stick figure: the planned "
+            "grasp. (The completion's mesh and CNN input layers were switched off to show the object.)_"
+        )
     return text
 
 
 def execution_summary(sid: int, name: str, results: list[ExecutionResult]) -> str:
     """A notification's body after executing ``results`` of segment ``sid`` on true object ``name``."""
     lifted = [r.lift.success for r in results if r.lift is not None]
-    return (f"Segment {sid} on {name}: joint error {np.mean([r.joint_error for r in results]):.1f}°, "
-            f"pose error {np.mean([r.pose_error for r in results]):.1f} mm"
-            + (f", lifted {sum(lifted)}/{len(lifted)}" if lifted else "") + ".")
+    return (
+        f"Segment {sid} on {name}: joint error {np.mean([r.joint_error for r in results]):.1f}°, "
+        f"pose error {np.mean([r.pose_error for r in results]):.1f} mm"
+        + (f", lifted {sum(lifted)}/{len(lifted)}" if lifted else "")
+        + "."
+    )

@@ -37,8 +37,14 @@ class GraspJobs:
         self.busy = threading.Lock()  # held by the running job
         self._last_progress = -1
 
-    def start(self, kind: str, segment_id: int, client: viser.ClientHandle | None, wait: bool,
-              work: Callable[[GraspJob], object]) -> GraspJob | None:
+    def start(
+        self,
+        kind: str,
+        segment_id: int,
+        client: viser.ClientHandle | None,
+        wait: bool,
+        work: Callable[[GraspJob], object],
+    ) -> GraspJob | None:
         """Run ``work(job)`` in a background thread unless a grasp job already runs (``wait``:
         return once it has finished). ``kind``: ``plan`` or ``execute``."""
         if not self.busy.acquire(blocking=False):
@@ -58,8 +64,12 @@ class GraspJobs:
             except Exception as e:  # a bad mesh, pybullet, a vanished client...: keep the app alive
                 log.exception("grasp %s job on segment %s failed", kind, segment_id)
                 job.error = f"{type(e).__name__}: {e}"
-                self.notify(client, f"Grasp {'planning' if kind == 'plan' else 'execution'} failed",
-                            f"Segment {segment_id}: {e}", "red")
+                self.notify(
+                    client,
+                    f"Grasp {'planning' if kind == 'plan' else 'execution'} failed",
+                    f"Segment {segment_id}: {e}",
+                    "red",
+                )
             finally:
                 job.cancelled = job.cancel_event.is_set()
                 self._set_running(False)
