@@ -1,6 +1,7 @@
 """shapeviewer: Shape Completion Enabled Robotic Grasping (Varley et al., IROS 2017), runnable and visible."""
 
 import os
+from typing import Any
 
 # OpenMP threads that spin while they wait make a 2-thread CNN pass 10-20x slower (about 0.3 s
 # instead of 20 ms) as soon as anything else runs on a 2-core machine. Sleeping waits keep clicks
@@ -9,7 +10,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # The public API, imported on first use so that `import shapeviewer` stays light (no torch,
 # open3d or pybullet until a function needs them).
-_API = {
+_API: dict[str, str | tuple[str, str]] = {
     "complete": ".pipeline",
     "load_capture": ".capture",
     "segment_scene": ".segment",
@@ -30,12 +31,13 @@ _API = {
 __all__ = sorted(_API)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name not in _API:
         raise AttributeError(f"module 'shapeviewer' has no attribute {name!r}")
     import importlib
 
-    module, attr = _API[name] if isinstance(_API[name], tuple) else (_API[name], name)
+    entry = _API[name]
+    module, attr = entry if isinstance(entry, tuple) else (entry, name)
     value = getattr(importlib.import_module(module, __name__), attr)
     globals()[name] = value
     return value

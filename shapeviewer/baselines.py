@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import trimesh
 from scipy import ndimage, sparse
 
@@ -222,7 +223,7 @@ def mirror_mesh(
     points_cam: np.ndarray,
     support_plane_cam: np.ndarray | None,
     *,
-    camera_center: np.ndarray = (0.0, 0.0, 0.0),
+    camera_center: npt.ArrayLike = (0.0, 0.0, 0.0),
     poisson_depth: int = POISSON_DEPTH,
 ) -> trimesh.Trimesh:
     """The Mirror baseline (Bohg et al., ICRA 2011): complete the object by its mirror image.
@@ -317,7 +318,7 @@ def _poisson_solid(
 
 
 def find_mirror_plane(
-    points_cam: np.ndarray, support_plane_cam: np.ndarray | None, camera_center: np.ndarray = (0.0, 0.0, 0.0)
+    points_cam: np.ndarray, support_plane_cam: np.ndarray | None, camera_center: npt.ArrayLike = (0.0, 0.0, 0.0)
 ) -> SymmetryPlane:
     """The symmetry plane perpendicular to the support plane that best explains the view.
 
@@ -389,12 +390,13 @@ def find_mirror_plane(
     step = OFFSET_STEP_FACTOR * spacing
 
     def best_of(thetas: np.ndarray, positions_for, rewards: tuple[float, float]) -> tuple[SymmetryPlane, float]:
-        best = None
+        best: SymmetryPlane | None = None
         for theta in thetas:
             normal = np.cos(theta) * e1 + np.sin(theta) * e2
             candidate = _best_position(sample, normal, positions_for(normal), visibility, size, *rewards)
             if best is None or candidate.score < best.score:
                 best, best_theta = candidate, theta
+        assert best is not None  # thetas is never empty
         return best, best_theta
 
     def coarse_positions(normal: np.ndarray) -> np.ndarray:

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import numpy.typing as npt
 
-from .geometry import raycasting_scene
+from .geometry import o3d_tensor, raycasting_scene
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ def _pixel_directions(intr: Intrinsics) -> np.ndarray:
     return d
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     """``T_world_cam`` of an optical-frame camera at ``eye`` looking at ``target`` (world metres)."""
     eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
     z = target - eye
@@ -99,9 +100,6 @@ class RaycastRenderer:
     """
 
     def __init__(self, meshes_world: list) -> None:
-        import open3d as o3d
-
-        self._o3d = o3d
         self.scene = raycasting_scene(*meshes_world)
         self.bounds = [np.asarray(m.bounds) for m in meshes_world]
 
@@ -118,7 +116,7 @@ class RaycastRenderer:
         depth = np.zeros((intr.height, intr.width), np.float32)
         gid = np.full((intr.height, intr.width), -1, np.int32)
         normals = np.zeros((intr.height, intr.width, 3), np.float32) if with_normals else None
-        outputs = (depth, gid, normals) if with_normals else (depth, gid)
+        outputs: tuple[np.ndarray, ...] = (depth, gid) if normals is None else (depth, gid, normals)
         if crop_to_objects and self.bounds:
             box = _projected_box(self.bounds, intr, T_world_cam)
             if box is None:
@@ -127,13 +125,13 @@ class RaycastRenderer:
         R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
         d = dirs_cam[v0:v1, u0:u1] @ R.T.astype(np.float32)
         rays = np.concatenate([np.broadcast_to(t.astype(np.float32), d.shape), d], axis=-1)
-        hit = self.scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays)))
+        hit = self.scene.cast_rays(o3d_tensor(np.ascontiguousarray(rays)))
         t_hit = hit["t_hit"].numpy()
         ids = hit["geometry_ids"].numpy().astype(np.int64)
         ok = np.isfinite(t_hit)
         depth[v0:v1, u0:u1] = np.where(ok, t_hit, 0.0)
         gid[v0:v1, u0:u1] = np.where(ok, ids, -1)
-        if with_normals:
+        if normals is not None:
             normals[v0:v1, u0:u1] = np.where(ok[..., None], hit["primitive_normals"].numpy(), 0.0)
         return outputs
 
@@ -175,8 +173,10 @@ def backproject_valid(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
 class DepthNoise(ABC):
     """A depth sensor model: :meth:`apply` turns an ideal depth image into a measured one."""
 
-    #: How far (pixels) from the measured pixels the noise reaches; None: anywhere in the image.
-    reach_px: int | None = None
+    @property
+    def reach_px(self) -> int | None:
+        """How far (pixels) from the measured pixels the noise reaches; None: anywhere in the image."""
+        return None
 
     def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
         """A noisy copy of an ideal depth image (metres, 0 = missing), drawn from ``seed``."""

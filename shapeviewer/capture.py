@@ -188,7 +188,7 @@ def decimate(capture: Capture, max_points: int) -> Capture:
 
     return replace(
         capture,
-        points_cam=take(capture.points_cam),
+        points_cam=np.ascontiguousarray(capture.points_cam[keep]),
         colors=take(capture.colors),
         labels=take(capture.labels),
         intrinsics=intr,
@@ -273,9 +273,7 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
         raise CaptureError(f"{path}: {n_points:,} points; at most {MAX_FILE_POINTS:,} can be loaded")
     # Our own header checks above catch what Open3D would only warn about (or fill with zeros).
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        cloud = o3d.io.read_point_cloud(
-            str(path), format=suffix[1:], remove_nan_points=False, remove_infinite_points=False
-        )
+        cloud = o3d.io.read_point_cloud(path, format=suffix[1:], remove_nan_points=False, remove_infinite_points=False)
     points = np.asarray(cloud.points, dtype=np.float64)
     if len(points) != n_points:
         raise CaptureError(

@@ -149,8 +149,8 @@ def cmd_complete(args) -> int:
         try:
             check_segment(s.points_cam)
             usable.append(s)
-        except SegmentTooSmallError as e:
-            entry["error"] = str(e)
+        except SegmentTooSmallError as exc:
+            entry["error"] = str(exc)
         report["segments"].append(entry)
     completions = complete_points(
         [s.points_cam for s in usable], completer, [s.id for s in usable], support_plane=seg.plane_cam
@@ -184,7 +184,7 @@ def cmd_complete(args) -> int:
             "volume_m3": float(c.fast_mesh.volume),
         }
         if args.mode == "detailed":
-            steps = {}
+            steps: dict[str, float] = {}
             t0 = time.perf_counter()
             mesh = detailed_mesh(c.probabilities, c.frame, s.points_cam, timings=steps, support_plane=seg.plane_cam)
             c.timings["detailed_mesh"] = time.perf_counter() - t0

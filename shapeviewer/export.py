@@ -39,6 +39,7 @@ def mesh_bytes(
     if fmt == "glb":
         return trimesh.Scene(mesh).export(file_type="glb")
     data = mesh.export(file_type=fmt)
+    assert isinstance(data, (str, bytes))  # a dict only for trimesh's "dict" formats
     return data.encode() if isinstance(data, str) else data
 
 

@@ -1,6 +1,8 @@
 """Geometry shared by the camera, the metrics, the voxel grids, the simulator and the grasp planner.
 
 - :func:`raycasting_scene`: trimesh meshes in an Open3D ray-casting scene (rays, distances, inside tests).
+- :func:`o3d_tensor`: a numpy array as an Open3D tensor (rays and query points for that scene).
+- :func:`concatenate_meshes`: triangle meshes as one.
 - :func:`pose_to_pq` / :func:`pq_to_pose`: a 4x4 pose and its position + pybullet quaternion.
 - :func:`centre_of_mass`: where a mesh's mass sits (grasp torques, dynamic bodies).
 
@@ -35,10 +37,25 @@ def raycasting_scene(*meshes: trimesh.Trimesh, origin: np.ndarray | None = None)
     scene = o3d.t.geometry.RaycastingScene()
     for mesh in meshes:
         vertices = np.asarray(mesh.vertices) if origin is None else np.asarray(mesh.vertices) - origin
-        scene.add_triangles(
-            o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
-        )
+        scene.add_triangles(o3d_tensor(vertices.astype(np.float32)), o3d_tensor(np.asarray(mesh.faces, np.uint32)))
     return scene
+
+
+def o3d_tensor(array: np.ndarray) -> o3d.core.Tensor:
+    """A copy of ``array`` as an Open3D CPU tensor of the same dtype."""
+    import open3d as o3d
+
+    # Open3D's stub omits the defaults (None: the array's dtype, the CPU) of dtype and device.
+    return o3d.core.Tensor(array)  # type: ignore[call-overload]
+
+
+def concatenate_meshes(meshes: Sequence[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """``meshes`` as one mesh (``trimesh.util.concatenate``, which returns a Trimesh for Trimesh parts)."""
+    import trimesh
+
+    mesh = trimesh.util.concatenate(meshes)
+    assert isinstance(mesh, trimesh.Trimesh)
+    return mesh
 
 
 def pose_to_pq(T: np.ndarray) -> tuple[list[float], list[float]]:

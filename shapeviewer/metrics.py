@@ -21,7 +21,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
-from .geometry import raycasting_scene
+from .geometry import o3d_tensor, raycasting_scene
 from .voxel import GridFrame, points_to_grid, surface_samples
 
 # Geodesic divergence constants from the authors' geodesic_comparison code.
@@ -229,8 +229,6 @@ def _inside_lattice(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray, zs: n
     One ray per (x, y) column along +z instead of one per point (about 100x fewer rays): a point is
     inside when an odd number of surface crossings lie below it.
     """
-    import open3d as o3d
-
     # Work near the origin (float32 ray casting), and keep the columns off the edges and faces of
     # meshes whose vertices sit on lattice coordinates with a small irrational offset, where a ray
     # could count one crossing twice or not at all.
@@ -242,7 +240,7 @@ def _inside_lattice(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray, zs: n
     scene = raycasting_scene(mesh, origin=origin)
     rays = np.zeros((x.size, 6))
     rays[:, 0], rays[:, 1], rays[:, 2], rays[:, 5] = x.ravel(), y.ravel(), z_start, 1.0
-    hits = scene.list_intersections(o3d.core.Tensor(rays.astype(np.float32)))
+    hits = scene.list_intersections(o3d_tensor(rays.astype(np.float32)))
     ray_ids = hits["ray_ids"].numpy().astype(np.int64)
     hit_z = hits["t_hit"].numpy() + z_start
     # crossings[r, k] = number of crossings of ray r below lattice point k (the last slot: all of them).
@@ -257,7 +255,7 @@ def _inside_lattice(mesh: trimesh.Trimesh, xs: np.ndarray, ys: np.ndarray, zs: n
         zz = np.broadcast_to(z, (len(bad), len(z)))
         xy = np.stack([x.ravel()[bad], y.ravel()[bad]], axis=1)
         points = np.concatenate([np.repeat(xy[:, None, :], len(z), axis=1), zz[..., None]], axis=2)
-        query = o3d.core.Tensor(points.reshape(-1, 3).astype(np.float32))
+        query = o3d_tensor(points.reshape(-1, 3).astype(np.float32))
         inside[bad] = scene.compute_occupancy(query).numpy().astype(bool).reshape(len(bad), -1)
     return inside.reshape(len(xs), len(ys), len(z))
 
@@ -272,10 +270,8 @@ def _surface_points(mesh: trimesh.Trimesh, samples: int, seed: int) -> np.ndarra
 
 def _distance_to_surface(points: np.ndarray, mesh: trimesh.Trimesh, origin: np.ndarray) -> np.ndarray:
     """Unsigned distance of points (already shifted by ``-origin``) to the surface of ``mesh``."""
-    import open3d as o3d
-
     scene = raycasting_scene(mesh, origin=origin)
-    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().astype(np.float64)
+    return scene.compute_distance(o3d_tensor(points.astype(np.float32))).numpy().astype(np.float64)
 
 
 def _geodesic_function(mesh: trimesh.Trimesh, n_samples: int, seed: int) -> np.ndarray:

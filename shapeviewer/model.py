@@ -51,6 +51,7 @@ class Varley2017(nn.Module):
         self.dense2 = nn.Linear(5000, GRID_DIM**3)
         for m in self.modules():
             if isinstance(m, (nn.Conv3d, nn.Linear)):
+                assert m.bias is not None  # every layer is built with a bias
                 nn.init.zeros_(m.bias)
                 if m is self.dense2:
                     nn.init.xavier_normal_(m.weight)  # Glorot-normal before the sigmoid
@@ -109,6 +110,7 @@ class UNet3D(nn.Module):
         self.head = nn.Conv3d(w1, 8, 1)
         for m in self.modules():
             if isinstance(m, nn.Conv3d):
+                assert m.bias is not None  # every layer is built with a bias
                 nn.init.zeros_(m.bias)
                 if m is self.head:
                     nn.init.xavier_normal_(m.weight)  # Glorot before the sigmoid, as the paper

@@ -14,6 +14,7 @@ import numpy as np
 import trimesh
 from skimage import measure
 
+from .geometry import concatenate_meshes
 from .voxel import GridFrame, below_plane, seen_free
 
 OCCUPANCY_LEVEL = 0.5
@@ -260,7 +261,7 @@ def _drop_specks(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     if len(parts) < 2:
         return mesh
     volumes = np.abs([p.volume for p in parts])
-    return trimesh.util.concatenate([p for p, v in zip(parts, volumes) if v >= MIN_PART_SHARE * volumes.max()])
+    return concatenate_meshes([p for p, v in zip(parts, volumes) if v >= MIN_PART_SHARE * volumes.max()])
 
 
 def detailed_mesh(

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from .geometry import raycasting_scene
+from .geometry import o3d_tensor, raycasting_scene
 
 GRID_DIM = 40
 GRID_SPAN = 32
@@ -154,8 +154,6 @@ def solid_grid(
         scene: an optional prebuilt ray-casting scene holding ``mesh`` (mesh frame; see
             :func:`~shapeviewer.geometry.raycasting_scene`), reused across views of one object.
     """
-    import open3d as o3d
-
     T = np.eye(4) if T_cam_mesh is None else np.asarray(T_cam_mesh, dtype=np.float64)
     grid = np.zeros((frame.dim,) * 3, dtype=bool)
     corners = trimesh.bounds.corners(mesh.bounds)
@@ -169,7 +167,7 @@ def solid_grid(
         if scene is None:
             scene = raycasting_scene(mesh)
         centers_mesh = (frame.voxel_centers(idx) - T[:3, 3]) @ T[:3, :3]
-        inside = scene.compute_occupancy(o3d.core.Tensor(centers_mesh.astype(np.float32))).numpy().astype(bool)
+        inside = scene.compute_occupancy(o3d_tensor(centers_mesh.astype(np.float32))).numpy().astype(bool)
         idx = idx[inside]
         grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     if surface_points is None:

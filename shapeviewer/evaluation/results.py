@@ -559,7 +559,10 @@ class ResultsStore:
             f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh FROM completions WHERE object=? AND view=?",
             (name, int(view)),
         )
-        out = [CompletionResult(m, *map(_undb, vals), err or "", mesh) for m, *vals, err, mesh in rows]
+        out = [
+            CompletionResult(m, **dict(zip((*METRICS, "seconds"), map(_undb, vals))), error=err or "", mesh=mesh)
+            for m, *vals, err, mesh in rows
+        ]
         rank = {m: i for i, m in enumerate(METHODS)}
         return sorted(out, key=lambda c: (rank.get(c.method, len(rank)), c.method))
 
@@ -569,7 +572,10 @@ class ResultsStore:
             f"SELECT method, hand, file, {', '.join(GRASP_FIELDS)}, error FROM grasps WHERE object=? AND view=?",
             (name, int(view)),
         )
-        out = [GraspSummary(m, h, f, int(n or 0), *map(_undb, vals), err or "") for m, h, f, n, *vals, err in rows]
+        out = [
+            GraspSummary(m, h, f, int(n or 0), **dict(zip(GRASP_FIELDS[1:], map(_undb, vals))), error=err or "")
+            for m, h, f, n, *vals, err in rows
+        ]
         rank = {m: i for i, m in enumerate(METHODS)}
         return sorted(out, key=lambda g: (rank.get(g.method, len(rank)), g.method, g.hand))
 

@@ -105,7 +105,7 @@ def execute_grasps(
     """Execute every grasp on ``true_mesh_world`` (world frame) with the protocol of SPEC
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
     executed state."""
-    results: list[ExecutionResult | None] = [None] * len(grasps)
+    by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)
     for hand_name in dict.fromkeys(g.hand for g in grasps):
@@ -119,10 +119,11 @@ def execute_grasps(
                 clear, approach, closed = approach_and_close(
                     world, g.T_world_palm, planned, back_off=BACK_OFF, max_approach=BACK_OFF, targets=(planned, None)
                 )
+                assert closed is not None  # two closing targets
                 contacts, q = object_contacts(closed, body, com, radius)
                 T = world.palm_pose()
                 joints = dict(zip(hand.joint_names, map(float, closed.joints)))
-                results[i] = ExecutionResult(
+                by_index[i] = ExecutionResult(
                     hand=hand_name,
                     T_world_palm=T,
                     dofs=dict(zip(hand.dof_names, map(float, closed.dofs))),
@@ -135,6 +136,7 @@ def execute_grasps(
                     start_clear=clear,
                     approach_contact=approach.contact,
                 )
+    results = [by_index[i] for i in range(len(grasps))]  # every grasp's hand had its world
     if lift:
         for r in results:
             r.lift = lift_test(r, true_mesh_world, table=table, shake=shake)

@@ -17,17 +17,18 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache, cached_property
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pybullet as p
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from shapeviewer.geometry import pose_to_pq, pq_to_pose
+from shapeviewer.geometry import concatenate_meshes, pose_to_pq, pq_to_pose
 
 HANDS_DIR = Path(__file__).resolve().parents[2] / "static_assets" / "hands"
 HAND_NAMES = ("barrett", "panda")
@@ -40,7 +41,7 @@ HAND_NAMES = ("barrett", "panda")
 @cache
 def _mesh_file(path: Path) -> trimesh.Trimesh:
     """A mesh file, read once per process (callers copy it before changing it)."""
-    return trimesh.load(path, force="mesh", process=False)
+    return trimesh.load_mesh(path, process=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +124,27 @@ def _axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
+def _attr(elem: ET.Element, key: str) -> str:
+    """A required attribute of a URDF element."""
+    value = elem.get(key)
+    if value is None:
+        raise ValueError(f"URDF <{elem.tag}> without the {key!r} attribute")
+    return value
+
+
+def _child(elem: ET.Element, tag: str) -> ET.Element:
+    """A required child element of a URDF element."""
+    child = elem.find(tag)
+    if child is None:
+        raise ValueError(f"URDF <{elem.tag}> without a <{tag}>")
+    return child
+
+
+def _rgba(text: str) -> tuple[float, float, float, float]:
+    r, g, b, a = (float(v) for v in text.split())
+    return r, g, b, a
+
+
 def _origin(elem: ET.Element | None) -> np.ndarray:
     T = np.eye(4)
     if elem is not None:
@@ -146,7 +168,7 @@ class UrdfModel:
     def load(path: Path) -> UrdfModel:
         robot = ET.parse(path).getroot()
         colours = {
-            m.get("name"): tuple(float(v) for v in m.find("color").get("rgba").split())
+            _attr(m, "name"): _rgba(_attr(_child(m, "color"), "rgba"))
             for m in robot.findall("material")
             if m.find("color") is not None
         }
@@ -154,42 +176,43 @@ class UrdfModel:
         def geometries(link: ET.Element, tag: str) -> tuple[Geometry, ...]:
             out = []
             for el in link.findall(tag):
-                g = el.find("geometry")[0]
+                g = _child(el, "geometry")[0]
                 mat = el.find("material")
-                rgba = colours.get(mat.get("name")) if mat is not None else None
+                rgba = colours.get(_attr(mat, "name")) if mat is not None else None
+                size: tuple[float, ...]
                 if g.tag == "box":
-                    size = tuple(float(v) for v in g.get("size").split())
+                    size = tuple(float(v) for v in _attr(g, "size").split())
                 elif g.tag in ("cylinder", "capsule"):
-                    size = (float(g.get("radius")), float(g.get("length")))
+                    size = (float(_attr(g, "radius")), float(_attr(g, "length")))
                 elif g.tag == "sphere":
-                    size = (float(g.get("radius")),)
+                    size = (float(_attr(g, "radius")),)
                 else:
                     size = tuple(float(v) for v in g.get("scale", "1 1 1").split())
-                mesh_path = path.parent / g.get("filename") if g.tag == "mesh" else None
+                mesh_path = path.parent / _attr(g, "filename") if g.tag == "mesh" else None
                 out.append(Geometry(g.tag, _origin(el.find("origin")), size, mesh_path, rgba))
             return tuple(out)
 
         links = robot.findall("link")
-        visuals = {link.get("name"): geometries(link, "visual") for link in links}
-        collisions = {link.get("name"): geometries(link, "collision") for link in links}
+        visuals = {_attr(link, "name"): geometries(link, "visual") for link in links}
+        collisions = {_attr(link, "name"): geometries(link, "collision") for link in links}
         by_parent: dict[str, list[UrdfJoint]] = {}
         children = set()
         for j in robot.findall("joint"):
             limit = j.find("limit")
             axis = j.find("axis")
             joint = UrdfJoint(
-                name=j.get("name"),
-                kind=j.get("type"),
-                parent=j.find("parent").get("link"),
-                child=j.find("child").get("link"),
+                name=_attr(j, "name"),
+                kind=_attr(j, "type"),
+                parent=_attr(_child(j, "parent"), "link"),
+                child=_attr(_child(j, "child"), "link"),
                 T_parent_joint=_origin(j.find("origin")),
-                axis=np.array([float(v) for v in (axis.get("xyz") if axis is not None else "1 0 0").split()]),
+                axis=np.array([float(v) for v in (_attr(axis, "xyz") if axis is not None else "1 0 0").split()]),
                 lower=float(limit.get("lower", "-inf")) if limit is not None else -math.inf,
                 upper=float(limit.get("upper", "inf")) if limit is not None else math.inf,
             )
             by_parent.setdefault(joint.parent, []).append(joint)
             children.add(joint.child)
-        root = next(link.get("name") for link in links if link.get("name") not in children)
+        root = next(_attr(link, "name") for link in links if _attr(link, "name") not in children)
         ordered: list[UrdfJoint] = []
         stack = [root]
         while stack:
@@ -303,23 +326,23 @@ class Hand:
         closing = self.closing_dofs
         return np.array([bool(closing[c.dof]) for c in self.coupling])
 
-    def clip_dofs(self, dofs: Sequence[float]) -> np.ndarray:
+    def clip_dofs(self, dofs: npt.ArrayLike) -> np.ndarray:
         return np.clip(np.asarray(dofs, float), self.dof_lower, self.dof_upper)
 
-    def clip_joints(self, joints: Sequence[float]) -> np.ndarray:
+    def clip_joints(self, joints: npt.ArrayLike) -> np.ndarray:
         lower, upper = self.joint_limits
         return np.clip(np.asarray(joints, float), lower, upper)
 
-    def joints_from_dofs(self, dofs: Sequence[float]) -> np.ndarray:
+    def joints_from_dofs(self, dofs: npt.ArrayLike) -> np.ndarray:
         """Joint values implied by the coupling (no breakaway), clipped to the joint limits."""
         d = self.clip_dofs(dofs)
         return self.clip_joints([c.gain * d[c.dof] + c.offset for c in self.coupling])
 
-    def link_poses(self, joints: Sequence[float]) -> dict[str, np.ndarray]:
+    def link_poses(self, joints: npt.ArrayLike) -> dict[str, np.ndarray]:
         """``T_palm_link`` of every link at ``joints``."""
         return self.model.link_poses(dict(zip(self.joint_names, np.asarray(joints, float))))
 
-    def virtual_contacts_palm(self, joints: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    def virtual_contacts_palm(self, joints: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Virtual contact points and outward normals (each K x 3) in the palm frame at ``joints``."""
         poses = self.link_poses(joints)
         pts = np.array([poses[v.link][:3, :3] @ v.point + poses[v.link][:3, 3] for v in self.virtual_contacts])
@@ -441,7 +464,7 @@ def get_hand(name: str) -> Hand:
 # Meshes for drawing.
 
 
-def hand_meshes(hand: Hand, joints: Sequence[float]) -> list[tuple[trimesh.Trimesh, np.ndarray]]:
+def hand_meshes(hand: Hand, joints: npt.ArrayLike) -> list[tuple[trimesh.Trimesh, np.ndarray]]:
     """Visual elements of the hand at ``joints``: (mesh in its own frame, ``T_palm_mesh``) pairs.
 
     Meshes are fresh copies, coloured from the URDF materials; safe to modify.
@@ -450,13 +473,13 @@ def hand_meshes(hand: Hand, joints: Sequence[float]) -> list[tuple[trimesh.Trime
     return [(g.mesh(), poses[link] @ g.T_link_geom) for link, geoms in hand.model.visuals.items() for g in geoms]
 
 
-def hand_mesh(hand: Hand, joints: Sequence[float]) -> trimesh.Trimesh:
+def hand_mesh(hand: Hand, joints: npt.ArrayLike) -> trimesh.Trimesh:
     """The whole hand at ``joints`` as one coloured mesh in the palm frame."""
     parts = []
     for mesh, T in hand_meshes(hand, joints):
         mesh.apply_transform(T)
         parts.append(mesh)
-    return trimesh.util.concatenate(parts)
+    return concatenate_meshes(parts)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -536,7 +559,7 @@ def load_hand(client: int, name: str | Hand, T_world_palm: np.ndarray | None = N
     return hb
 
 
-def set_joint_positions(hb: HandBody, joints: Sequence[float]) -> None:
+def set_joint_positions(hb: HandBody, joints: npt.ArrayLike) -> None:
     """Set every movable joint (``hand.joint_names`` order), clipped to its limits; dofs untouched."""
     hb.joints = hb.hand.clip_joints(joints)
     p.resetJointStatesMultiDof(
@@ -544,7 +567,7 @@ def set_joint_positions(hb: HandBody, joints: Sequence[float]) -> None:
     )
 
 
-def set_joints(hb: HandBody, dofs: Sequence[float]) -> None:
+def set_joints(hb: HandBody, dofs: npt.ArrayLike) -> None:
     """Set the hand's dofs (clipped to their limits) and every joint through the coupling."""
     hb.dofs = hb.hand.clip_dofs(dofs)
     set_joint_positions(hb, hb.hand.joints_from_dofs(hb.dofs))

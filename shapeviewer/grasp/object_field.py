@@ -6,13 +6,12 @@ Frames: the world frame (the table top is z = 0, +z up), the mesh's. Units: metr
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 import trimesh
 from scipy import ndimage
 from scipy.spatial import cKDTree
 from skimage import measure
 
-from shapeviewer.geometry import centre_of_mass, raycasting_scene
+from shapeviewer.geometry import centre_of_mass, o3d_tensor, raycasting_scene
 from shapeviewer.grasp.quality import max_radius
 
 ALIGN_WEIGHT = 0.05  # m per unit of (1 - cos): GraspIt's contact energy adds 100 mm / 2 per unit
@@ -47,9 +46,8 @@ class ObjectField:
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         scene = raycasting_scene(mesh)
         votes = 1 if mesh.is_watertight else 3
-        inside = (
-            scene.compute_occupancy(o3d.core.Tensor(grid.astype(np.float32)), nsamples=votes).numpy() > 0.5
-        ).reshape(shape)
+        occupancy = scene.compute_occupancy(o3d_tensor(grid.astype(np.float32)), nsamples=votes).numpy()
+        inside = (occupancy > 0.5).reshape(shape)
         # Node-to-node distances to the other side put the surface about half a step away.
         sd = np.where(
             inside,
@@ -112,7 +110,7 @@ class ObjectField:
         surface APPROACH_MARGIN outside the object; inf on a miss."""
         o = np.asarray(origins, np.float32).reshape(-1, 3)
         d = np.broadcast_to(np.asarray(direction, np.float32), np.shape(origins)).reshape(-1, 3)
-        rays = o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, d])))
+        rays = o3d_tensor(np.ascontiguousarray(np.hstack([o, d])))
         return self.offset_scene.cast_rays(rays)["t_hit"].numpy().reshape(np.shape(origins)[:-1])
 
     def contact_energy(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:

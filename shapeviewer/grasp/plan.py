@@ -252,6 +252,7 @@ def plan(
                 # Reject a start in collision and any touch of the table (by the approach or a finger).
                 if not clear or _table_gap(world, 2 * world.contact_tol) <= world.contact_tol:
                     continue
+                assert closed is not None  # the default targets close once
                 g = _grasp_from_world(world, body, obj, closed)
                 if _fingers_touch(hand_, g.contacts):
                     grasps.append(g)

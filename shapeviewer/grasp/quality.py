@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import ConvexHull, QhullError
 
 FRICTION = 1.0  # the Barrett's rubber on common materials (SPEC section 8)
@@ -67,9 +68,9 @@ def friction_cone(force_direction: np.ndarray, mu: float = FRICTION, n_edges: in
 
 
 def contact_wrenches(
-    points: np.ndarray,
-    normals: np.ndarray,
-    com: np.ndarray,
+    points: npt.ArrayLike,
+    normals: npt.ArrayLike,
+    com: npt.ArrayLike,
     radius: float,
     mu: float = FRICTION,
     n_edges: int = CONE_EDGES,
@@ -107,9 +108,9 @@ def wrench_space_quality(wrenches: np.ndarray) -> GraspQuality:
 
 
 def grasp_quality(
-    points: np.ndarray,
-    normals: np.ndarray,
-    com: np.ndarray,
+    points: npt.ArrayLike,
+    normals: npt.ArrayLike,
+    com: npt.ArrayLike,
     radius: float,
     mu: float = FRICTION,
     n_edges: int = CONE_EDGES,

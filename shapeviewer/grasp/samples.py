@@ -13,11 +13,10 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
-import open3d as o3d
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from shapeviewer.geometry import raycasting_scene
+from shapeviewer.geometry import concatenate_meshes, o3d_tensor, raycasting_scene
 from shapeviewer.grasp.hands import Hand, get_hand
 
 APPROACH_SPACING = 0.005  # m between the lines of the approach rays (about the margin: nothing slips through)
@@ -79,7 +78,7 @@ def _front_points(hand: Hand, poses: dict[str, np.ndarray]) -> np.ndarray:
     for link, T in poses.items():
         for g in hand.model.collisions.get(link, ()):
             parts.append(g.mesh().apply_transform(T @ g.T_link_geom))
-    mesh = trimesh.util.concatenate(parts)
+    mesh = concatenate_meshes(parts)
     scene = raycasting_scene(mesh)
     (x0, y0, _), (x1, y1, z1) = mesh.bounds
     xs = np.arange(x0, x1 + APPROACH_SPACING, APPROACH_SPACING)
@@ -87,7 +86,7 @@ def _front_points(hand: Hand, poses: dict[str, np.ndarray]) -> np.ndarray:
     xy = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
     origins = np.hstack([xy, np.full((len(xy), 1), z1 + 0.01)])
     rays = np.hstack([origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1))]).astype(np.float32)
-    t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    t = scene.cast_rays(o3d_tensor(rays))["t_hit"].numpy()
     hit = np.isfinite(t)
     return origins[hit] - t[hit, None] * [0.0, 0.0, 1.0]
 

@@ -531,6 +531,7 @@ class GraspWorld:
                             phase[f.name] = "done"
                         continue
                 # Breakaway: only the distal joint moves, towards closing (+).
+                assert f.breakaway_joint is not None  # the phase is only entered for a breakaway finger
                 j = joint_pos[f.breakaway_joint]
                 if any(gaps.get(hb.link_index[n], np.inf) <= tol for n in f.breakaway_links):
                     phase[f.name], blocked[f.name] = "done", True

@@ -145,7 +145,9 @@ def _household_path(name: str) -> str | None:
 
 def _sources() -> list[tuple[str, str, Path | str, tuple]]:
     """(name, source, path, scale) for every candidate object."""
-    out = [(f"ycb/{p.stem}", "ycb", p, (1.0, 1.0, 1.0)) for p in sorted(_ycb_dir().glob("*.stl"))]
+    out: list[tuple[str, str, Path | str, tuple]] = [
+        (f"ycb/{p.stem}", "ycb", p, (1.0, 1.0, 1.0)) for p in sorted(_ycb_dir().glob("*.stl"))
+    ]
     pb = _pybullet_dir()
     for d in sorted((pb / "random_urdfs").iterdir()):
         urdf = d / f"{d.name}.urdf"
@@ -253,7 +255,8 @@ def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
         srcs = {n: (p, s) for n, src, p, s in _sources() if src != "household"}
         if name not in srcs:
             raise KeyError(f"unknown object {name!r}; see `shapeviewer objects`")
-        mesh = process_mesh(*srcs[name])
+        path, scale = srcs[name]
+        mesh = process_mesh(Path(path), scale)
     _save_mesh(cp, mesh)
     return mesh
 
@@ -308,11 +311,11 @@ def catalogue() -> tuple[ObjectEntry, ...]:
     Objects that cannot be made watertight or are not graspable-size are skipped and logged.
     """
     index = cache_dir() / f"catalogue_v{CATALOGUE_VERSION}.json"
-    for path in (index, SHIPPED_INDEX):
-        entries = _read_index(path)
+    for index_path in (index, SHIPPED_INDEX):
+        entries = _read_index(index_path)
         if entries is not None:
             return entries
-    entries = []
+    built: list[ObjectEntry] = []
     for name, source, path, scale in _sources():
         try:
             mesh = _build(source, path, scale)
@@ -323,7 +326,7 @@ def catalogue() -> tuple[ObjectEntry, ...]:
             log.info("skipping %s: size %.3f m is not graspable", name, mesh.extents.max())
             continue
         _save_mesh(_cache_path(name), mesh)
-        entries.append(
+        built.append(
             ObjectEntry(
                 name,
                 source,
@@ -334,7 +337,7 @@ def catalogue() -> tuple[ObjectEntry, ...]:
                 int(len(mesh.faces)),
             )
         )
-    entries = tuple(entries)
+    entries = tuple(built)
     write_index(entries, index)
     return entries
 

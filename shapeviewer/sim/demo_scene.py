@@ -358,7 +358,8 @@ def _choose_camera(
     Views where a tall object hides another are re-drawn (up to ``CAMERA_TRIES``); the view whose
     least visible object shows most is kept.
     """
-    best, best_px = None, -1
+    best: np.ndarray | None = None
+    best_px = -1
     for _ in range(CAMERA_TRIES):
         elevation = np.radians(rng.uniform(*CAMERA_ELEVATION_DEG))
         azimuth = np.radians(rng.uniform(*CAMERA_AZIMUTH_DEG))
@@ -376,6 +377,7 @@ def _choose_camera(
             best, best_px = T, least_px
         if least_px >= MIN_VISIBLE_PX:
             break
+    assert best is not None  # the first try beats best_px = -1
     return best
 
 

@@ -22,6 +22,7 @@ from itertools import pairwise
 
 import manifold3d as mf
 import numpy as np
+import numpy.typing as npt
 import trimesh
 from scipy.interpolate import PchipInterpolator
 
@@ -80,7 +81,7 @@ def _round(cs: mf.CrossSection, convex: float, concave: float = 0.0) -> mf.Cross
     return cs.simplify(2e-5)  # offsets leave runs of near-duplicate points
 
 
-def _solid_profile(profile: Array) -> mf.CrossSection:
+def _solid_profile(profile: npt.ArrayLike) -> mf.CrossSection:
     """The region under a profile (r, z) that starts on the axis at the bottom and ends on it at the top."""
     p = np.asarray(profile, dtype=np.float64)
     return _section(np.vstack([p, _mirror(p)]))
@@ -118,7 +119,10 @@ def _rbox(size: tuple[float, float, float], r: float, segments: int = 24) -> mf.
 
 
 def _tube(
-    points: Array, radii: Array | float, segments: int = 24, squash: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    points: npt.ArrayLike,
+    radii: npt.ArrayLike,
+    segments: int = 24,
+    squash: tuple[float, float, float] = (1.0, 1.0, 1.0),
 ) -> mf.Manifold:
     """A swept round bar: the union of hulls of consecutive balls (radius per point, optionally squashed)."""
     pts = np.asarray(points, dtype=np.float64)
@@ -128,9 +132,9 @@ def _tube(
 
 
 def _sweep(
-    path: Array,
-    radii: Array | float,
-    normal: Array,
+    path: npt.ArrayLike,
+    radii: npt.ArrayLike,
+    normal: npt.ArrayLike,
     around: int = 24,
     squash: float = 1.0,
     round_ends: tuple[bool, bool] = (True, True),
@@ -177,7 +181,7 @@ def _sweep(
     return mf.Manifold(mf.Mesh(vert_properties=V.astype(np.float32), tri_verts=F.astype(np.uint32)))
 
 
-def _fillet(corners: Array, radius: Array | float, n: int = 8) -> Array:
+def _fillet(corners: npt.ArrayLike, radius: npt.ArrayLike, n: int = 8) -> Array:
     """A 2D polyline with each inner corner replaced by a circular arc of ``radius`` (clamped to fit)."""
     c = np.asarray(corners, dtype=np.float64)
     rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), len(c))
@@ -428,7 +432,7 @@ def box(rng: np.random.Generator) -> trimesh.Trimesh:
         dims[2] = max(dims[2], 0.05)
         dims = [dims[i] for i in rng.permutation(3)]
     r = rng.uniform(0.001, min(0.006, 0.2 * min(dims)))
-    return _finish(_rbox(tuple(dims), r, 32))
+    return _finish(_rbox((dims[0], dims[1], dims[2]), r, 32))
 
 
 def spray_bottle(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -491,7 +495,7 @@ def drill(rng: np.random.Generator) -> trimesh.Trimesh:
     chuck = _revolve(
         _solid_profile(
             [
-                [0, 0],
+                [0.0, 0.0],
                 [rc, 0],
                 [rc, step * chuck_len],
                 [rc * 0.9, (step + 0.05) * chuck_len],
@@ -645,7 +649,7 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
     size = rng.uniform(0.15, 0.30)
     if kind == "hammer":  # unit-free sketch, scaled to `size` (the handle's length) at the end
         ry, rz = rng.uniform(0.045, 0.065), rng.uniform(0.035, 0.05)
-        handle = _tube([[0, 0, 0], [1.0, 0, 0]], ry, 24, (1.0, 1.0, rz / ry))
+        handle = _tube([[0.0, 0.0, 0.0], [1.0, 0, 0]], ry, 24, (1.0, 1.0, rz / ry))
         hw, hl = rng.uniform(0.08, 0.11), rng.uniform(0.35, 0.5)
         face = mf.Manifold.cylinder(hl * 0.55, hw * 0.7, hw * 0.6, 32).rotate((-90, 0, 0))
         claw = _rbox((hw * 1.2, hl * 0.5, hw * 0.9), 0.01, 12).translate((0, -hl * 0.2, 0))
@@ -673,7 +677,7 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
     else:
         hlen = rng.uniform(0.5, 0.65)
         hy = rng.uniform(0.04, 0.06)
-        handle = _tube([[0, 0, 0], [hlen, 0, 0]], hy, 24, (1.0, 1.0, rng.uniform(0.5, 0.8)))
+        handle = _tube([[0.0, 0.0, 0.0], [hlen, 0, 0]], hy, 24, (1.0, 1.0, rng.uniform(0.5, 0.8)))
         bw, bl, bt = rng.uniform(0.2, 0.35), 1.0 - hlen - 0.1, rng.uniform(0.012, 0.02)
         blade = _rbox((bl, bw, bt), bt * 0.45, 12).translate((1.0 - bl / 2, 0, -0.03))
         neck = _tube([[hlen - 0.02, 0, 0], [1.0 - bl + 0.02, 0, -0.03]], 0.02, 16, (1.0, 1.0, 0.6))

@@ -25,6 +25,7 @@ import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -41,10 +42,14 @@ from .drawing import PipelineDrawing
 from .exports import segment_export
 from .grasps import GraspController, GraspHost, GraspJob
 from .guard import Guard, server_url, start_server
+from .gui import set_value
 from .jobs import READY, JobSlot, notify_clients, send_download
 from .rays import first_hit
 from .state import MESH_TITLES, LoadedScene, load_scene, make_mesh
 from .visuals import confidence_figures
+
+if TYPE_CHECKING:
+    from viser._gui_api import LiteralColor
 
 log = logging.getLogger(__name__)
 
@@ -216,6 +221,7 @@ class ViewerApp:
 
     def segment_centroid_world(self, segment_id: int) -> np.ndarray:
         """Mean of a segment's points, world metres."""
+        assert self.scene is not None  # set in __init__ (which fails without a scene)
         return self.scene.points_world[segment_id].mean(axis=0)
 
     def complete(self, segment_id: int, client: viser.ClientHandle | None = None) -> Completion | None:
@@ -339,7 +345,7 @@ class ViewerApp:
         client: viser.ClientHandle | None,
         title: str,
         body: str,
-        color: str | None = None,
+        color: LiteralColor | None = None,
         auto_close: float | None = 8.0,
     ) -> None:
         """Tell one client (every client when None) something; red ones are remembered as ``last_error``."""
@@ -359,17 +365,19 @@ class ViewerApp:
 
     def _complete_in_slot(self, ids: list[int] | None, client: viser.ClientHandle | None) -> list[Completion]:
         """:meth:`_complete` for a caller that holds the job slot (and has a scene)."""
+        scene = self.scene
+        assert scene is not None  # the callers return early without one
         single = ids is not None
-        if single:
-            missing = [i for i in ids if i not in self.scene.segments]
+        if ids is not None:
+            missing = [i for i in ids if i not in scene.segments]
             if missing:
                 self.notify(client, "No such segment", f"Segment {missing[0]} is not in this scene.", "red")
                 return []
             self._select(ids[0])
         usable, skipped = [], []
-        for sid in ids if single else list(self.scene.segments):
+        for sid in ids if ids is not None else list(scene.segments):
             try:
-                usable.append((sid, check_segment(self.scene.segments[sid].points_cam)))
+                usable.append((sid, check_segment(scene.segments[sid].points_cam)))
             except SegmentTooSmallError as e:
                 skipped.append(f"segment {sid}: {e}")
         if skipped:
@@ -388,7 +396,7 @@ class ViewerApp:
                 [p for _, p in usable],
                 self.completer,
                 [sid for sid, _ in usable],
-                support_plane=self.scene.segmentation.plane_cam,
+                support_plane=scene.segmentation.plane_cam,
             )
             t0 = time.perf_counter()
             for c in done:
@@ -402,7 +410,7 @@ class ViewerApp:
             return []
         self.completions.update({c.segment_id: c for c in done})
         title = f"Segment **{done[0].segment_id}**" if single else f"All **{len(done)}** segments (totals)"
-        self.last_timings = P.completion_timings(done, self.scene.seg_seconds, send)
+        self.last_timings = P.completion_timings(done, scene.seg_seconds, send)
         self.panel.timings.content = P.completion_timings_markdown(title, self.last_timings)
         self.panel.status.content = f"Completed {what}. Click a segment to complete it."
         empty = [f"segment {c.segment_id}: {c.error}" for c in done if c.fast_mesh is None]
@@ -414,6 +422,8 @@ class ViewerApp:
         self, kind: str, c: Completion, client: viser.ClientHandle | None
     ) -> trimesh.Trimesh | None:
         """Make, draw and store mesh ``kind`` of completion ``c`` (the caller holds the job slot)."""
+        scene = self.scene
+        assert scene is not None  # ``c`` is a completion of it
         sid, title = c.segment_id, MESH_TITLES[kind]
         what = f"the {title.lower()} of segment {sid}"
         notes = self._show_loading(client, f"Computing {what}...")
@@ -421,10 +431,10 @@ class ViewerApp:
         steps: dict[str, float] = {}
         try:
             t0 = time.perf_counter()
-            mesh = make_mesh(kind, c, self.scene, steps)
+            mesh = make_mesh(kind, c, scene, steps)
             seconds = time.perf_counter() - t0
             t0 = time.perf_counter()
-            self.drawing.draw_mesh(self.scene, kind, sid, mesh)
+            self.drawing.draw_mesh(scene, kind, sid, mesh)
             self.server.flush()
             send = time.perf_counter() - t0
         except Exception as e:  # an empty completion, a degenerate cloud, ...: keep the app alive
@@ -439,7 +449,7 @@ class ViewerApp:
         c.timings[f"{kind}_mesh"] = seconds
         if kind == "detailed":
             c.timings["detailed_steps"] = steps
-        self.panel.layers[f"{kind}_mesh"].value = True  # the user asked to see it
+        set_value(self.panel.layers[f"{kind}_mesh"], True)  # the user asked to see it
         self.panel.timings.content = P.mesh_timings_markdown(kind, c, send)
         self.notify(
             client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.", "green"
@@ -447,6 +457,7 @@ class ViewerApp:
         return mesh
 
     def _draw_completion(self, c: Completion) -> None:
+        assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_completion(self.scene, c, self.panel.shade_output.value)
         if self.panel.layers["confidence"].value:
             self._show_confidence(c)
@@ -457,6 +468,7 @@ class ViewerApp:
         if c.samples is None:
             c.samples = self.completer.predict_samples(c.grid_in, 8, context=c.context)
         spread = c.samples.std(axis=0)
+        assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
             c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)
@@ -481,9 +493,9 @@ class ViewerApp:
                 return False
             notes = self._show_loading(client, f"Loading {what}...")
             try:
-                note = self._set_scene(make(), require_segment=True)
-                if note is not None:
-                    self.notify(client, "Large capture", note, "yellow")
+                decimated = self._set_scene(make(), require_segment=True)
+                if decimated is not None:
+                    self.notify(client, "Large capture", decimated, "yellow")
                 return True
             except Exception as e:  # any bad input: tell the user, keep the current scene
                 log.warning("loading %s failed: %s", what, e, exc_info=not isinstance(e, (ValueError, OSError)))
@@ -524,9 +536,9 @@ class ViewerApp:
             self.panel.source.content += f"  \n_{decimated}_"
         self._segment_options = scene.segment_options
         self.panel.segment.options = (P.NO_SEGMENT, *self._segment_options)
-        self.panel.segment.value = P.NO_SEGMENT
+        set_value(self.panel.segment, P.NO_SEGMENT)
         if capture.colors is None:
-            self.panel.cloud_colors.value = "depth"
+            set_value(self.panel.cloud_colors, "depth")
         self.panel.timings.content = P.timings_markdown("No completion yet.", [("segmentation", scene.seg_seconds)])
         self.panel.status.content = (
             "Ready. **Click a segment** in the 3D view to complete it."
@@ -541,15 +553,15 @@ class ViewerApp:
     def _select(self, segment_id: int | None) -> None:
         self.selected = segment_id
         if segment_id is None:
-            self.panel.segment.value = P.NO_SEGMENT
+            set_value(self.panel.segment, P.NO_SEGMENT)
             return
-        self.panel.segment.value = next(o for o, sid in self._segment_options.items() if sid == segment_id)
+        set_value(self.panel.segment, next(o for o, sid in self._segment_options.items() if sid == segment_id))
 
     def _set_status(self, text: str) -> None:
         self.panel.status.content = text
 
     def _show_layer(self, key: str, visible: bool) -> None:
-        self.panel.layers[key].value = visible
+        set_value(self.panel.layers[key], visible)
 
     def _existing_mesh(self, kind: str, segment_id: int) -> trimesh.Trimesh | None:
         c = self.completions.get(segment_id)
@@ -569,7 +581,7 @@ class ViewerApp:
         @self.server.scene.on_click()
         def _(event: viser.SceneClickEvent) -> None:
             if self.drawing.visible:  # the dataset is on screen: its clicks are not picks
-                self.click(event.ray_origin, event.ray_direction, event.client)
+                self.click(np.asarray(event.ray_origin), np.asarray(event.ray_direction), event.client)
 
         # First, so that a segment's grasps are listed before completing it starts.
         p.segment.on_update(lambda _event: self.grasps.follow_segment(self._segment_options.get(p.segment.value)))
@@ -591,14 +603,31 @@ class ViewerApp:
             else:
                 self.complete(self.selected, event.client)
 
-        p.complete_all.on_click(lambda event: self.complete_all(event.client))
+        @p.complete_all.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.complete_all(event.client)
+
         for button, kind in ((p.detailed, "detailed"), (p.partial, "partial"), (p.mirror, "mirror"), (p.hull, "hull")):
-            button.on_click(lambda event, kind=kind: self.compute_mesh(kind, None, event.client))
-        p.new_scene.on_click(lambda event: self.load_default(int(p.seed.value), event.client))
-        p.load_cloud.on_click(lambda event: self.load_cloud(p.cloud_path.value, event.client))
+
+            def compute(event: viser.GuiEvent, kind: str = kind) -> None:
+                self.compute_mesh(kind, None, event.client)
+
+            button.on_click(compute)
+
+        @p.new_scene.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.load_default(int(p.seed.value), event.client)
+
+        @p.load_cloud.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.load_cloud(p.cloud_path.value, event.client)
 
         for key, box in p.layers.items():
-            box.on_update(lambda _event, key=key, box=box: self.drawing.set_layer(key, box.value))
+
+            def toggle(_event: viser.GuiEvent, key: str = key, box: viser.GuiCheckboxHandle = box) -> None:
+                self.drawing.set_layer(key, box.value)
+
+            box.on_update(toggle)
 
         @p.layers["confidence"].on_update
         def _(_event: viser.GuiEvent) -> None:
@@ -613,22 +642,28 @@ class ViewerApp:
 
         @p.shade_output.on_update
         def _(_event: viser.GuiEvent) -> None:
-            for c in list(self.completions.values()):
-                self.drawing.draw_output(self.scene, c, p.shade_output.value)
+            if self.scene is not None:  # there are completions only once there is a scene
+                for c in list(self.completions.values()):
+                    self.drawing.draw_output(self.scene, c, p.shade_output.value)
 
         for button, kind in ((p.export_points, "points"), (p.export_grids, "grids"), (p.export_mesh, "mesh")):
-            button.on_click(
-                lambda event, kind=kind: send_download(
+
+            def export(event: viser.GuiEvent, kind: str = kind) -> None:
+                send_download(
                     event.client,
                     lambda: self.export_bytes(
                         kind, None, p.mesh_format.value, p.export_frame.value, p.export_mesh_kind.value
                     ),
                     self.notify,
                 )
-            )
+
+            button.on_click(export)
 
         self.server.on_client_connect(self._on_connect)
-        self.server.on_client_disconnect(lambda client: self._loading_notes.pop(client.client_id, None))
+
+        @self.server.on_client_disconnect
+        def _(client: viser.ClientHandle) -> None:
+            self._loading_notes.pop(client.client_id, None)
 
     # ------------------------------------------------------------------------------------------
     # Notifications

@@ -90,11 +90,12 @@ class PipelineDrawing:
 
     def sent_points(self) -> int:
         """How many cloud and segment points the browsers were sent."""
-        return sum(
-            len(h.points)
-            for name, h in self.nodes.items()
-            if name == "/cloud/points" or name.startswith("/segments/seg_")
-        )
+        total = 0
+        for name, h in self.nodes.items():
+            if name == "/cloud/points" or name.startswith("/segments/seg_"):
+                assert isinstance(h, viser.PointCloudHandle)  # added by draw_cloud / draw_segments
+                total += len(h.points)
+        return total
 
     # ------------------------------------------------------------------------------------------
     # A scene
@@ -112,8 +113,9 @@ class PipelineDrawing:
         capture, T = scene.capture, scene.T_world_cam
         valid = capture.valid_mask()
         pts_cam = capture.flat_points()[valid]
-        if capture_colors and capture.colors is not None:
-            colors = capture.flat_colors()[valid]
+        flat_colors = capture.flat_colors() if capture_colors else None  # None when the capture has none
+        if flat_colors is not None:
+            colors = flat_colors[valid]
         else:
             colors = depth_colors(pts_cam[:, 2])
         budget = MAX_SENT_POINTS - sum(len(p) for p in scene.display_points(MAX_SEGMENT_POINTS).values())
@@ -248,6 +250,7 @@ class PipelineDrawing:
     def draw_output(self, scene: LoadedScene, c: Completion, shade_output: bool) -> None:
         """The CNN output's surface voxels, shaded by probability (``shade_output``) or in the segment's colour."""
         idx = surface_voxels(c.grid_out)
+        colors: np.ndarray | tuple[int, int, int]
         if shade_output:
             colors = probability_colors(c.probabilities[tuple(idx.T)])
         else:
@@ -263,7 +266,13 @@ class PipelineDrawing:
         )
 
     def draw_voxels(
-        self, scene: LoadedScene, name: str, indices: np.ndarray, c: Completion, fill: float, colors
+        self,
+        scene: LoadedScene,
+        name: str,
+        indices: np.ndarray,
+        c: Completion,
+        fill: float,
+        colors: np.ndarray | tuple[int, int, int],
     ) -> None:
         """Cubes (``fill`` of a voxel's edge) at voxels ``indices`` of ``c``'s grid; removed when there are none."""
         if len(indices) == 0:

@@ -163,6 +163,7 @@ class Guard:
         return any(secrets.compare_digest(g.encode(), self.token.encode()) for g in given)
 
     def _has_token(self, path: str, headers, port: int) -> bool:
+        assert self.token is not None  # refusal() asks only when a token is required
         if self.token_in_query(path):
             return True
         cookies = http.cookies.SimpleCookie()
@@ -218,12 +219,13 @@ def start_server(host: str, port: int, guard: Guard) -> viser.ViserServer:
         installed.append(True)
         return original(*args, **kwargs)
 
+    # setattr, not an assignment: mypy refuses a function in place of ``serve`` (a class there).
     with _PATCH_LOCK:
-        ws_server.serve = guarded_serve
+        setattr(ws_server, "serve", guarded_serve)  # noqa: B010
         try:
             server = viser.ViserServer(host=host, port=port, verbose=False)
         finally:
-            ws_server.serve = original
+            setattr(ws_server, "serve", original)  # noqa: B010
     if not installed:
         server.stop()
         raise RuntimeError(

@@ -11,8 +11,12 @@ import contextlib
 import logging
 import threading
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 import viser
+
+if TYPE_CHECKING:
+    from viser._gui_api import LiteralColor  # the notification colours viser takes; it does not export the name
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +30,7 @@ def notify_clients(
     client: viser.ClientHandle | None,
     title: str,
     body: str,
-    color: str | None = None,
+    color: LiteralColor | None = None,
     auto_close: float | None = 8.0,
 ) -> None:
     """Tell ``client`` (every client when None or when it has gone) something; never raises.

@@ -71,7 +71,8 @@ def shade(color: np.ndarray, factor: float) -> tuple[int, int, int]:
     """An RGB colour darkened (factor < 1) or lightened towards white (factor > 1)."""
     c = np.asarray(color, dtype=np.float64)
     c = c * factor if factor <= 1 else c + (255 - c) * (factor - 1)
-    return tuple(int(v) for v in np.clip(c, 0, 255))
+    r, g, b = (int(v) for v in np.clip(c, 0, 255))
+    return r, g, b
 
 
 def surface_voxels(grid: np.ndarray) -> np.ndarray:

@@ -13,13 +13,19 @@ import io
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import viser
 
 from ...evaluation.records import KINDS, METHODS
 from ...export import MESH_FORMATS
+from ..gui import set_value
+
+if TYPE_CHECKING:
+    # Not exported by viser: what add_progress_bar returns, and add_command's hotkey and modifier.
+    from viser._gui_handles import GuiProgressBarHandle
+    from viser._messages import HotkeyKey, KeyModifier
 
 SPLITS = {"all objects": None, "training models": "train", "holdout models": "holdout_model"}
 ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most views": "views"}
@@ -27,7 +33,7 @@ ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most vi
 SLIDER = {"jaccard": (0.0, 1.0, 0.01), "hausdorff_mean_mm": (0.0, 100.0, 0.5), "geodesic": (0.0, 1.0, 0.01)}
 STEPS = {"◀ object": ("object", -1), "◀ view": ("view", -1), "view ▶": ("view", 1), "object ▶": ("object", 1)}
 # Command palette entries: (label, hotkey, modifier, what, delta).
-HOTKEYS = (
+HOTKEYS: tuple[tuple[str, HotkeyKey, KeyModifier | None, str, int], ...] = (
     ("Next view", "N", None, "view", 1),
     ("Previous view", "P", None, "view", -1),
     ("Next object", "N", "shift", "object", 1),
@@ -67,7 +73,7 @@ class DatasetControls:
     """
 
     status: viser.GuiMarkdownHandle
-    progress: viser.GuiProgressBarHandle
+    progress: GuiProgressBarHandle
     show: viser.GuiButtonHandle
     search: viser.GuiTextHandle
     split: viser.GuiDropdownHandle
@@ -147,11 +153,11 @@ class DatasetControls:
             self.object_options = object_options
             options = tuple(object_options) or (NO_OBJECT,)
             self.object.options = options
-            self.object.value = next((k for k, v in object_options.items() if v == selected), options[0])
+            set_value(self.object, next((k for k, v in object_options.items() if v == selected), options[0]))
             self.view_options = view_options
             if view_options:
                 self.view.options = tuple(view_options)
-                self.view.value = next((k for k, v in view_options.items() if v == view), self.view.options[0])
+                set_value(self.view, next((k for k, v in view_options.items() if v == view), self.view.options[0]))
             else:
                 self.view.options = (NO_VIEW,)
 
@@ -188,7 +194,7 @@ class DatasetControls:
             lo, hi, st = SLIDER[self.metric.value]
             with self.quiet():
                 self.range.min, self.range.max, self.range.step = lo, hi, st
-                self.range.value = (lo, hi)
+                set_value(self.range, (lo, hi))
             tab.refresh_index()
 
         @self.limit.on_update
@@ -218,10 +224,16 @@ class DatasetControls:
             if v is not None and v != shown[1]:
                 tab.select(shown[0], v, event.client)
 
-        self.step.on_click(lambda event: tab.step(*STEPS[self.step.value], event.client))
+        @self.step.on_click
+        def _(event: viser.GuiEvent) -> None:
+            tab.step(*STEPS[self.step.value], event.client)
+
         self.show.on_click(lambda event: tab.leave(event.client) if tab.active else tab.show(event.client))
         self.pipeline_note.on_click(lambda event: tab.leave(event.client))
-        self.open_pipeline.on_click(lambda event: tab.open_in_pipeline(event.client))
+
+        @self.open_pipeline.on_click
+        def _(event: viser.GuiEvent) -> None:
+            tab.open_in_pipeline(event.client)
 
         @self.show_grasps.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -230,10 +242,18 @@ class DatasetControls:
                 tab.select(*shown, event.client)
 
         for button, what in self.downloads:
-            button.on_click(lambda event, what=what: tab.download(event.client, what))
+
+            def download(event: viser.GuiEvent, what: str = what) -> None:
+                tab.download(event.client, what)
+
+            button.on_click(download)
         for label, key, modifier, what, delta in HOTKEYS:
             cmd = gui.add_command(f"Dataset: {label.lower()}", hotkey=key, modifier=modifier, icon=viser.Icon.DATABASE)
-            cmd.on_trigger(lambda event, what=what, delta=delta: tab.step(what, delta, event.client))
+
+            def step(event: viser.CommandEvent, what: str = what, delta: int = delta) -> None:
+                tab.step(what, delta, event.client)
+
+            cmd.on_trigger(step)
 
 
 def build_controls(gui: viser.GuiApi, tab: viser.GuiTabHandle, pipeline_tab: viser.GuiTabHandle) -> DatasetControls:

@@ -79,6 +79,7 @@ class DisplayMeshes:
         if hit is not None:
             self._cache.move_to_end(key)
             return hit
+        value: tuple[np.ndarray, np.ndarray | None]
         if points:
             value = (read_points(path).astype(np.float32), None)
         else:

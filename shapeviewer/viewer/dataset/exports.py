@@ -54,10 +54,10 @@ def export_bytes(
     if what == "view_csv":
         return f"{stem}_metrics.csv", store.view_csv(info.object, info.view).encode()
     if what == "grasps":
-        g = next((g for g in grasps if g.method == kind and g.file), None)
-        if g is None:
+        file = next((g.file for g in grasps if g.method == kind and g.file), None)
+        if file is None:
             raise ValueError(f"No grasps planned on {kind} for this view.")
-        return f"{stem}__{kind}_grasps.json", store.path(g.file).read_bytes()
+        return f"{stem}__{kind}_grasps.json", store.path(file).read_bytes()
     if what != "mesh":
         raise ValueError(f"unknown export {what!r}")
     if kind not in KINDS:

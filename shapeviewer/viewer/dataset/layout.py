@@ -75,7 +75,7 @@ def layout_view(
     """
     T_obj_cam = np.linalg.inv(np.asarray(T_cam_obj, dtype=np.float64))
     sensor_obj = T_obj_cam[:3, 3]
-    away = -sensor_obj / max(np.linalg.norm(sensor_obj), 1e-9)  # from the object towards its unseen side
+    away = -sensor_obj / max(float(np.linalg.norm(sensor_obj)), 1e-9)  # from the object towards its unseen side
     horizontal = float(np.hypot(away[0], away[1]))
     azimuth = math.atan2(away[1], away[0]) + OBLIQUE_AZIMUTH if horizontal > 1e-6 else -math.pi / 2
     elevation = float(np.clip(math.atan2(away[2], horizontal), *ELEVATION_RANGE))

@@ -205,6 +205,7 @@ class DatasetTab:
                 self.hooks.notify(client, "No view", "Choose a view first.", "yellow")
                 return False
             info = self.shown.info
+            assert self.store is not None  # a view is shown only from a store
             try:
                 capture = self.store.capture(info.object, info.view)
             except Exception as e:
@@ -321,6 +322,7 @@ class DatasetTab:
         self.refresh_index()
 
     def _status_text(self) -> str:
+        assert self.store is not None  # called by refresh(), refresh_index() and the sample build: all with a store
         return status_markdown(self.store.counts(), str(self.store.root), self.building)
 
     def _fail(self, message: str) -> None:
@@ -337,7 +339,11 @@ class DatasetTab:
         if shown is not None and all(o.name != shown.info.object for o in objects):
             # Keep the shown object choosable even when the filters hide it.
             objects = [next((o for o in self.objects if o.name == shown.info.object), shown.object), *objects]
-        views = self.store.views(shown.info.object) if shown is not None else []
+        if shown is not None:
+            assert self.store is not None  # a view is shown only from a store
+            views = self.store.views(shown.info.object)
+        else:
+            views = []
         self.c.sync_selectors(
             {object_label(o, method, metric): o.name for o in objects},
             None if shown is None else shown.info.object,
@@ -348,27 +354,29 @@ class DatasetTab:
     def _show(self, info: ViewInfo, client: viser.ClientHandle | None) -> None:
         """Read view ``info``'s records and files, lay them out and draw them; aim the cameras."""
         t0 = time.perf_counter()
+        store = self.store
+        assert store is not None  # select() checked
         name = info.object
-        o = next((x for x in self.objects if x.name == name), None) or self.store.object(name)
-        completions = self.store.completions(name, info.view)
-        grasps = self.store.grasps(name, info.view)
+        o = next((x for x in self.objects if x.name == name), None) or store.object(name)
+        completions = store.completions(name, info.view)
+        grasps = store.grasps(name, info.view)
         by_method = {c.method: c for c in completions}
         files = {"truth": info.truth, "points": info.points, **{m: c.mesh for m, c in by_method.items()}}
         items = {
-            kind: self.meshes.get(self.store.path(files[kind]), kind == "points") for kind in KINDS if files.get(kind)
+            kind: self.meshes.get(store.path(file), kind == "points") for kind in KINDS if (file := files.get(kind))
         }
         if "truth" not in items:
             raise ValueError("the view has no ground-truth mesh file")
         kinds = tuple(k for k in KINDS if k in items or k in by_method)
         layout = layout_view(
-            self.store.T_cam_obj(name, info.view),
+            store.T_cam_obj(name, info.view),
             items["truth"][0],
             {k: v[0] for k, v in items.items()},
             kinds,
             self.scene.aspect(client),
         )
         labels = {k: column_label(k, len(items[k][0]) if k in items else 0, by_method.get(k), grasps) for k in kinds}
-        hands = best_grasp_hands(self.store, info, grasps, layout) if self.c.show_grasps.value else []
+        hands = best_grasp_hands(store, info, grasps, layout) if self.c.show_grasps.value else []
         # Show the root before adding to it: labels added under a hidden frame stay hidden in the
         # browser when the frame is shown later (viser 1.1).
         self._activate(None)

@@ -15,6 +15,7 @@ import viser
 
 from ...evaluation.results import ObjectSummary
 from ...evaluation.run import build_sample_store
+from ..gui import set_value
 from .controls import DatasetControls
 from .summary import bars_png, worst_first
 
@@ -39,7 +40,7 @@ class BarsWorker:
         self.drawn: tuple | None = None  # the key of the chart on screen
         self._show = show
         self._closed = closed
-        self._request: tuple | None = None
+        self._request: tuple[tuple, list[ObjectSummary], str, str] | None = None  # (key, objects, method, metric)
         self._wanted = threading.Event()
         self.thread = threading.Thread(target=self._run, name="dataset-bars", daemon=True)
 
@@ -61,6 +62,7 @@ class BarsWorker:
             self._wanted.clear()
             if self._closed.is_set():
                 return
+            assert self._request is not None  # set before _wanted (wake() sets it only when closing)
             key, objects, method, metric = self._request
             try:
                 png = bars_png(worst_first(objects, method, metric), metric)
@@ -124,7 +126,10 @@ class SampleBuild:
         self._notes: dict[int, viser.NotificationHandle] = {}  # client id -> progress notification
         self._step = ""
         server.on_client_connect(self._add_note)
-        server.on_client_disconnect(lambda client: self._notes.pop(client.client_id, None))
+
+        @server.on_client_disconnect
+        def _(client: viser.ClientHandle) -> None:
+            self._notes.pop(client.client_id, None)
 
     def start(self, root: Path, weights, completer) -> None:
         """Build the sample store in ``root`` with ``completer`` (a
@@ -139,7 +144,7 @@ class SampleBuild:
         def progress(done: int, total: int, what: str) -> None:
             if self.closed.is_set():
                 raise _Stopped
-            self.c.progress.value = 100.0 * done / max(total, 1)
+            set_value(self.c.progress, 100.0 * done / max(total, 1))
             if what == "done":
                 return
             self._step = f"step {done + 1} of {total}: {what}"

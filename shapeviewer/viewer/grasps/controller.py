@@ -17,6 +17,7 @@ from ...grasp.execute import ExecutionResult, execute_grasps, lift_test
 from ...grasp.hands import HAND_NAMES
 from ...grasp.plan import plan
 from ...grasp.serialize import grasps_to_json, scene_zip
+from ..gui import set_value
 from ..jobs import Notify, send_download
 from ..state import MESH_KINDS, LoadedScene
 from .controls import DEFAULT_GRASPS, MAX_GRASPS, NO_GRASP, build_grasp_panel
@@ -292,7 +293,7 @@ class GraspController:
         with self._state:
             if segment_id is not None and segment_id in self.sets:
                 self.current = segment_id
-            s = self.sets.get(self.current)
+            s = self._listed()
             self.selected = None if s is None or index is None else int(np.clip(index, 0, len(s.grasps) - 1))
             self._refresh_panel()
 
@@ -308,6 +309,7 @@ class GraspController:
         if s is None or not s.grasps:
             raise ValueError("No grasps to export: plan grasps on a segment first.")
         scene = self.host.scene()
+        assert scene is not None  # grasps are planned on a scene and forgotten with it
         meta = {
             "source": scene.capture.source,
             "segment": s.segment_id,
@@ -328,8 +330,9 @@ class GraspController:
 
     def clear(self) -> None:
         """Forget every segment's grasps and remove their nodes (a new scene); cancels a running job."""
-        if self.jobs.running():
-            self.jobs.job.cancel()
+        job = self.jobs.running_job()
+        if job is not None:
+            job.cancel()
         with self._state:
             self.drawing.clear()
             self.sets, self.current, self.selected = {}, None, None
@@ -340,21 +343,25 @@ class GraspController:
         scene = self.host.scene()
         if scene is None:
             return info_markdown(None, False, None)
-        return info_markdown(self.sets.get(self.current), not scene.capture.objects, self.selected)
+        return info_markdown(self._listed(), not scene.capture.objects, self.selected)
 
     # ------------------------------------------------------------------------------------------
     # Panel
+
+    def _listed(self) -> SegmentGrasps | None:
+        """The grasps of the segment the dropdown lists (None: no segment or no grasps)."""
+        return None if self.current is None else self.sets.get(self.current)
 
     def _restyle(self) -> None:
         self.drawing.restyle(self.current, self.selected, bool(self.panel.show_all.value))
 
     def _refresh_panel(self) -> None:
         """Grasp dropdown, styles and info for the listed segment."""
-        s = self.sets.get(self.current)
+        s = self._listed()
         if s is None or not s.grasps:
             self._options = {}
             self.panel.grasp.options = (NO_GRASP,)
-            self.panel.grasp.value = NO_GRASP
+            set_value(self.panel.grasp, NO_GRASP)
         else:
             self._options = grasp_options(s)
             options = tuple(self._options)
@@ -362,7 +369,7 @@ class GraspController:
                 self.panel.grasp.options = options
             value = NO_GRASP if self.selected is None else options[self.selected]
             if self.panel.grasp.value != value:
-                self.panel.grasp.value = value
+                set_value(self.panel.grasp, value)
         self._restyle()
         self._show_info()
 
@@ -378,7 +385,9 @@ class GraspController:
                 self.host.selected_segment(), p.hand.value, p.method.value, int(p.count.value), event.client, wait=False
             )
 
-        p.cancel.on_click(lambda _event: self.cancel())
+        @p.cancel.on_click
+        def _(_event: viser.GuiEvent) -> None:
+            self.cancel()
 
         @p.grasp.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -397,10 +406,13 @@ class GraspController:
             else:
                 self.execute(self.current, [self.selected], event.client, wait=False)
 
-        p.execute_all.on_click(lambda event: self.execute(self.current, None, event.client, wait=False))
+        @p.execute_all.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.execute(self.current, None, event.client, wait=False)
+
         for fmt, button in p.exports.items():
-            button.on_click(
-                lambda event, fmt=fmt: send_download(
-                    event.client, lambda: self.export(self.current, fmt), self.host.notify
-                )
-            )
+
+            def download(event: viser.GuiEvent, fmt: str = fmt) -> None:
+                send_download(event.client, lambda: self.export(self.current, fmt), self.host.notify)
+
+            button.on_click(download)

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import viser
 
 from ...grasp.hands import HAND_NAMES
 from ..state import MESH_KINDS
+
+if TYPE_CHECKING:
+    from viser._gui_handles import GuiProgressBarHandle  # what add_progress_bar returns; viser does not export it
 
 NO_GRASP = "(none)"
 DEFAULT_GRASPS = 20  # the paper plans 20 grasps per object
@@ -35,7 +39,7 @@ class GraspPanel:
     method: viser.GuiDropdownHandle
     count: viser.GuiNumberHandle
     plan: viser.GuiButtonHandle
-    progress: viser.GuiProgressBarHandle
+    progress: GuiProgressBarHandle
     cancel: viser.GuiButtonHandle
     grasp: viser.GuiDropdownHandle
     show_all: viser.GuiCheckboxHandle

@@ -50,7 +50,12 @@ def epsilon_colors(epsilons: Sequence[float]) -> list[tuple[int, int, int]]:
     best = float(eps.max()) if len(eps) and eps.max() > 0 else 1.0
     x = np.clip(eps / best, 0.0, 1.0)
     rgb = np.stack([np.interp(x, EPSILON_STOPS, [c[i] for c in EPSILON_COLORS]) for i in range(3)], axis=-1)
-    return [NO_CLOSURE_COLOR if e <= 0 else tuple(int(round(v)) for v in c) for e, c in zip(eps, rgb)]
+    return [NO_CLOSURE_COLOR if e <= 0 else _rounded_rgb(c) for e, c in zip(eps, rgb)]
+
+
+def _rounded_rgb(c: np.ndarray) -> tuple[int, int, int]:
+    r, g, b = (int(round(v)) for v in c)
+    return r, g, b
 
 
 def hand_skeleton(hand: Hand, joints: Sequence[float]) -> np.ndarray:
@@ -187,7 +192,7 @@ class GraspDrawing:
         q = [joints[n] for n in hand.joint_names]
         parts = [(link, i) for link, geoms in hand.model.visuals.items() for i in range(len(geoms))]
         for (link, i), (mesh, T) in zip(parts, hand_meshes(hand, q)):
-            rgb = shade(np.asarray(color), PALM_SHADE) if link == hand.palm_link else tuple(color)
+            rgb = shade(np.asarray(color), PALM_SHADE) if link == hand.palm_link else color
             scene.add_mesh_simple(
                 f"{name}/hand/{link}" + (f"_{i}" if i else ""),
                 np.asarray(mesh.vertices, np.float32),
@@ -204,7 +209,7 @@ class GraspDrawing:
             None
             if executed
             else scene.add_line_segments(
-                f"{name}/skeleton", sticks.astype(np.float32), tuple(color), thickness=SKELETON_THICKNESS
+                f"{name}/skeleton", sticks.astype(np.float32), color, thickness=SKELETON_THICKNESS
             )
         )
         pick_points = transform_points(T_world_palm, sample_segments(sticks, PICK_SPACING))

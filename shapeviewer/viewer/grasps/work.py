@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import viser
 
+from ..gui import set_value
 from ..jobs import READY, Notify
 from .controls import GraspPanel
 from .state import GraspJob, GraspJobError
@@ -84,13 +85,19 @@ class GraspJobs:
 
     def running(self) -> bool:
         """Whether a job runs now."""
-        return self.job is not None and not self.job.done.is_set()
+        return self.running_job() is not None
+
+    def running_job(self) -> GraspJob | None:
+        """The job that runs now, or None."""
+        job = self.job
+        return job if job is not None and not job.done.is_set() else None
 
     def cancel(self) -> bool:
         """Ask the running job to stop; False when none runs."""
-        if not self.running():
+        job = self.running_job()
+        if job is None:
             return False
-        self.job.cancel()
+        job.cancel()
         self.set_status("_Cancelling the grasp job..._")
         return True
 
@@ -106,7 +113,7 @@ class GraspJobs:
         pct = int(np.clip(100 * fraction, 0, 100))
         if pct != self._last_progress:
             self._last_progress = pct
-            self.panel.progress.value = float(pct)
+            set_value(self.panel.progress, float(pct))
 
     def _set_running(self, running: bool) -> None:
         """Buttons, progress bar and status while a job runs (and back when it ends)."""
@@ -114,7 +121,7 @@ class GraspJobs:
             for b in self.panel.job_buttons:
                 b.disabled = running
             self.panel.cancel.disabled = not running
-            self.panel.progress.value = 0.0
+            set_value(self.panel.progress, 0.0)
             self.panel.progress.visible = running
             self._last_progress = -1
             if not running:
