@@ -220,15 +220,22 @@ def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = Non
     if not np.isfinite(points).all(axis=-1).any():
         raise CaptureError(f"{path}: none of its {n} points is finite (all NaN/inf)")
     if points.ndim == 3:
-        h, w = points.shape[:2]
-        if intrinsics is None:
-            intrinsics = fit_intrinsics(points, source=str(path))
-        elif (intrinsics.width, intrinsics.height) != (w, h):
-            raise CaptureError(
-                f"{path}: the cloud is organized {w}x{h} but the given intrinsics "
-                f"are for {intrinsics.width}x{intrinsics.height}"
-            )
+        intrinsics = _organized_intrinsics(points, intrinsics, path)
     return Capture(points_cam=points, intrinsics=intrinsics, source=str(path))
+
+
+def _organized_intrinsics(points: np.ndarray, intrinsics: Intrinsics | None, path: Path) -> Intrinsics | None:
+    """The intrinsics of an organized (H, W, 3) cloud: fitted to its points when not given (None if
+    they fit no pinhole), else checked against its size (CaptureError when they do not match)."""
+    h, w = points.shape[:2]
+    if intrinsics is None:
+        return fit_intrinsics(points, source=str(path))
+    if (intrinsics.width, intrinsics.height) != (w, h):
+        raise CaptureError(
+            f"{path}: the cloud is organized {w}x{h} but the given intrinsics "
+            f"are for {intrinsics.width}x{intrinsics.height}"
+        )
+    return intrinsics
 
 
 def _npy_holds_points(path: Path) -> bool:
@@ -287,13 +294,7 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
     if height > 1:
         points = points.reshape(height, width, 3)
         colors = None if colors is None else colors.reshape(height, width, 3)
-        if intrinsics is None:
-            intrinsics = fit_intrinsics(points, source=str(path))
-        elif (intrinsics.width, intrinsics.height) != (width, height):
-            raise CaptureError(
-                f"{path}: the cloud is organized {width}x{height} but the given intrinsics "
-                f"are for {intrinsics.width}x{intrinsics.height}"
-            )
+        intrinsics = _organized_intrinsics(points, intrinsics, path)
     return Capture(points_cam=points, colors=colors, intrinsics=intrinsics, source=str(path))
 
 

@@ -169,9 +169,13 @@ def cmd_complete(args) -> int:
         (out / f"segment_{s.id}_points.ply").write_bytes(
             export.points_ply_bytes(s.points_cam, frame=args.frame, T_world_cam=T_world_cam)
         )
+        if args.samples:
+            c.samples = completer.predict_samples(c.grid_in, args.samples, context=c.context)
         (out / f"segment_{s.id}_grids.npz").write_bytes(
-            export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T_world_cam)
+            export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T_world_cam, samples=c.samples)
         )
+        if c.samples is not None:
+            e["samples"] = _write_sample_meshes(c, out / f"segment_{s.id}", args.format, args.frame, T_world_cam)
         if c.fast_mesh is None:
             e["error"] = c.error
             continue
@@ -202,6 +206,35 @@ def cmd_complete(args) -> int:
     done = sum("mesh" in e for e in report["segments"])
     print(f"{done}/{len(report['segments'])} segments completed -> {out}/report.json")
     return 0
+
+
+def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.ndarray) -> dict:
+    """Write the fast mesh of each of a completion's samples (``<stem>_sample_<k>.<fmt>``); returns
+    the report entry: the files (None for an empty sample), the samples' mean spread (std of the
+    probabilities) on the voxels any of them fills, and the share of those voxels with a spread
+    above 0.1 (guessed rather than seen)."""
+    from . import export
+    from .reconstruct import fast_mesh
+
+    assert c.samples is not None
+    files: list[str | None] = []
+    for k, probabilities in enumerate(c.samples):
+        try:
+            mesh = fast_mesh(probabilities, c.frame)
+        except ValueError:  # an empty sample: nothing to mesh
+            files.append(None)
+            continue
+        path = stem.with_name(f"{stem.name}_sample_{k}.{fmt}")
+        path.write_bytes(export.mesh_bytes(mesh, fmt, frame, T_world_cam))
+        files.append(path.name)
+    filled = (c.samples > 0.5).any(axis=0)
+    spread = c.samples.std(axis=0)
+    return {
+        "n": len(c.samples),
+        "meshes": files,
+        "mean_spread_filled": float(spread[filled].mean()) if filled.any() else 0.0,
+        "uncertain_share": float((spread[filled] > 0.1).mean()) if filled.any() else 0.0,
+    }
 
 
 def cmd_grasp(args) -> int:
@@ -373,6 +406,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True)
     s.add_argument("--format", default="ply", choices=["ply", "obj", "stl", "glb"])
     s.add_argument("--frame", default="world", choices=["world", "camera"])
+    s.add_argument(
+        "--samples",
+        type=int,
+        default=0,
+        choices=range(9),
+        metavar="N",
+        help="also write N (1-8) sample completions: their per-voxel spread in the grids .npz and "
+        "each sample's fast mesh (segment_<id>_sample_<k>)",
+    )
     _add_input_args(s)
     s.set_defaults(func=cmd_complete)
 

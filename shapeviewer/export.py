@@ -58,11 +58,22 @@ def points_ply_bytes(
 
 
 def grids_npz_bytes(
-    grid_in: np.ndarray, probabilities: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray | None = None
+    grid_in: np.ndarray,
+    probabilities: np.ndarray,
+    frame: GridFrame,
+    T_world_cam: np.ndarray | None = None,
+    *,
+    samples: np.ndarray | None = None,
 ) -> bytes:
     """CNN input and output grids with their frame: ``grid_in`` (bool), ``probabilities`` (float32),
     ``grid_to_camera`` (4x4, grid coordinates -> camera metres; voxel (i,j,k) centre at (i,j,k)+0.5),
-    ``T_world_cam`` (4x4) and ``frame_json``."""
+    ``T_world_cam`` (4x4) and ``frame_json``; with ``samples`` ((n, 40, 40, 40) sample completions,
+    :meth:`~shapeviewer.model.Completer.predict_samples`) also ``samples`` (float16) and ``spread``
+    (float32, their per-voxel standard deviation: the completion's uncertainty)."""
+    arrays = {}
+    if samples is not None:
+        samples = np.asarray(samples, np.float32)
+        arrays = {"samples": samples.astype(np.float16), "spread": samples.std(axis=0)}
     buf = io.BytesIO()
     np.savez_compressed(
         buf,
@@ -71,12 +82,6 @@ def grids_npz_bytes(
         grid_to_camera=frame.grid_to_camera(),
         T_world_cam=np.eye(4) if T_world_cam is None else np.asarray(T_world_cam),
         frame_json=np.array(json.dumps(frame.to_dict())),
+        **arrays,
     )
     return buf.getvalue()
-
-
-def load_grids_npz(data: bytes | str) -> tuple[np.ndarray, np.ndarray, GridFrame]:
-    """Inverse of :func:`grids_npz_bytes`: ``(grid_in, probabilities, frame)``."""
-    src = io.BytesIO(data) if isinstance(data, (bytes, bytearray)) else data
-    with np.load(src) as z:
-        return z["grid_in"], z["probabilities"], GridFrame.from_dict(json.loads(str(z["frame_json"])))

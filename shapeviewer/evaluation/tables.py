@@ -438,6 +438,17 @@ def panel_markdown(summary: dict, grasps: dict) -> str:
 # ----------------------------------------------------------------------------------------------
 # CSV
 
+# A grasp cell's own values (``summarize_grasps``), as CSV columns.
+GRASP_CELL_FIELDS = (
+    "grasps",
+    "no_grasp",
+    *GRASP_MEANS,
+    "joint_error_deg_median",
+    "pose_error_mm_median",
+    "lift_success_best",
+    "seconds_plan",
+)
+
 CSV_FIELDS = (
     "table",
     "view_set",
@@ -450,13 +461,7 @@ CSV_FIELDS = (
     "paper_hausdorff_mean_mm",
     "paper_geodesic",
     "hand",
-    "grasps",
-    "no_grasp",
-    *GRASP_MEANS,
-    "joint_error_deg_median",
-    "pose_error_mm_median",
-    "lift_success_best",
-    "seconds_plan",
+    *GRASP_CELL_FIELDS,
     "paper_joint_error_deg",
     "paper_pose_error_mm",
     "paper_lift_success",
@@ -496,18 +501,7 @@ def write_tables_csv(summary: dict, path: str | Path, g_summary: dict | None = N
                         "n": c["views"],
                         "failed": c["failed"],
                         "hand": hand,
-                        **{
-                            k: c[k]
-                            for k in (
-                                "grasps",
-                                "no_grasp",
-                                *GRASP_MEANS,
-                                "joint_error_deg_median",
-                                "pose_error_mm_median",
-                                "lift_success_best",
-                                "seconds_plan",
-                            )
-                        },
+                        **{k: c[k] for k in GRASP_CELL_FIELDS},
                         **{f"paper_{k}": paper_grasp(k, s, m) for k in PAPER_GRASP},
                         # Table V has no view sets: the paper's figure sits on the "all" row.
                         "paper_lift_success": paper_lift(m) if s == "all" else math.nan,

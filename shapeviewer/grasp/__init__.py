@@ -6,7 +6,7 @@
   world with a table, objects and a free-floating hand moved kinematically (approach, close).
 - :mod:`shapeviewer.grasp.quality`: GraspIt's epsilon (Ferrari-Canny) and volume qualities.
 - :mod:`shapeviewer.grasp.state`: what a grasp is (palm pose, dofs, joints, contacts, qualities).
-- :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan_grasps`):
+- :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan`):
   a cheap search (:mod:`~shapeviewer.grasp.search`, on the hand's precomputed
   :mod:`~shapeviewer.grasp.samples` and the object's :mod:`~shapeviewer.grasp.object_field`), then
   the best candidates executed in the pybullet world.

@@ -143,13 +143,6 @@ def execute_grasps(
     return results
 
 
-def execute_grasp(
-    grasp: Grasp, true_mesh_world: trimesh.Trimesh, *, table: bool = True, lift: bool = False, shake: bool = False
-) -> ExecutionResult:
-    """:func:`execute_grasps` for one grasp (a world of its own: batch grasps of one object)."""
-    return execute_grasps([grasp], true_mesh_world, table=table, lift=lift, shake=shake)[0]
-
-
 def lift_test(
     state: HandState,
     true_mesh_world: trimesh.Trimesh,

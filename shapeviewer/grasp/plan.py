@@ -4,7 +4,7 @@ Frames: the world frame has the table top as z = 0 (+z up); the palm frame is th
 the centre of the palm face, +z the approach). ``T_world_palm`` maps palm to world coordinates.
 Units: metres and radians.
 
-:func:`plan_grasps` works in two stages.
+:func:`plan` works in two stages.
 
 1. A cheap search without physics. A candidate is a palm orientation ``R`` (its approach
    ``R[:, 2]`` never points up, so the hand never comes from below the table), an aim point the
@@ -147,30 +147,6 @@ class PlanResult:
 
     grasps: list[Grasp]
     stats: PlanStats
-
-
-def plan_grasps(
-    mesh_world: trimesh.Trimesh,
-    *,
-    hand: str = "barrett",
-    n_grasps: int = 20,
-    seed: int = 0,
-    table: bool = True,
-    budget_seconds: float | None = None,
-    progress: ProgressFn | None = None,
-    cancel: CancelFn | None = None,
-) -> list[Grasp]:
-    """Up to ``n_grasps`` distinct grasps of ``mesh_world``, best first (see :func:`plan`)."""
-    return plan(
-        mesh_world,
-        hand=hand,
-        n_grasps=n_grasps,
-        seed=seed,
-        table=table,
-        budget_seconds=budget_seconds,
-        progress=progress,
-        cancel=cancel,
-    ).grasps
 
 
 def plan(

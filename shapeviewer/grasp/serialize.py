@@ -36,7 +36,7 @@ from shapeviewer.fileio import atomic_write
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.execute import ExecutionResult, LiftResult
 from shapeviewer.grasp.hands import get_hand
-from shapeviewer.grasp.plan import ProgressFn, plan_grasps
+from shapeviewer.grasp.plan import ProgressFn, plan
 from shapeviewer.grasp.state import Grasp, GraspContact, HandState
 from shapeviewer.grasp.world import convex_decomposition
 
@@ -296,9 +296,9 @@ def plan_mesh_file(
     if on_table:
         T[2, 3] = -float(mesh.bounds[0, 2])
         mesh.apply_transform(T)
-    grasps = plan_grasps(
+    grasps = plan(
         mesh, hand=hand, n_grasps=n_grasps, seed=seed, budget_seconds=budget_seconds, progress=progress
-    )
+    ).grasps
     meta = {"source": str(mesh_path), "T_world_mesh": _floats(T), "hand": hand, "seed": seed}
     out_path = Path(out_path)
     data = (
