@@ -115,9 +115,11 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dic
     return d
 
 
-def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
-    """Inverse of :func:`grasp_to_dict`."""
-    grasp = Grasp(
+def _state_args(
+    d: dict,
+) -> tuple[str, np.ndarray, dict[str, float], dict[str, float], tuple[GraspContact, ...], float, float]:
+    """The :class:`HandState` fields of a grasp's or an execution's dict, in field order."""
+    return (
         d["hand"],
         np.array(d["T_world_palm"], float),
         _named(d, "dof_names", "dof_values"),
@@ -125,9 +127,12 @@ def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
         _contacts_from_list(d["contacts"]),
         float(d["epsilon"]),
         float(d["volume"]),
-        float(d["energy"]),
-        d.get("frame", "world"),
     )
+
+
+def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
+    """Inverse of :func:`grasp_to_dict`."""
+    grasp = Grasp(*_state_args(d), float(d["energy"]), d.get("frame", "world"))
     e = d.get("execution")
     if e is None:
         return grasp, None
@@ -137,13 +142,7 @@ def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
         else LiftResult(bool(e["lift"]["success"]), float(e["lift"]["rise"]), float(e["lift"]["slip"]))
     )
     execution = ExecutionResult(
-        e["hand"],
-        np.array(e["T_world_palm"], float),
-        _named(e, "dof_names", "dof_values"),
-        _named(e, "joint_names", "joint_values"),
-        _contacts_from_list(e["contacts"]),
-        float(e["epsilon"]),
-        float(e["volume"]),
+        *_state_args(e),
         float(e["joint_error"]),
         float(e["pose_error"]),
         bool(e["start_clear"]),
