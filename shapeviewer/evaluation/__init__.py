@@ -6,4 +6,5 @@
 * :mod:`.records`: the files of a results folder: view stems, view records (read, write, parse), grasp rows.
 * :mod:`.tables`: the paper's figures, the summaries and every rendering of the tables (markdown, CSV).
 * :mod:`.results`: :class:`.results.ResultsStore`, the SQLite index and read API of a results folder.
+* :mod:`.summaries`: the plain records the store's read API returns.
 """

@@ -18,17 +18,15 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from itertools import pairwise
 
 import manifold3d as mf
 import numpy as np
-import numpy.typing as npt
 import trimesh
 from scipy.interpolate import PchipInterpolator
 
+from . import solids as S
+
 VERSION = 1  # bump when any family changes shape (mesh caches and catalogue indexes key on it)
-SEGMENTS = 64  # circle resolution of revolved bodies
-MIN_FACES, MAX_FACES = 1000, 30000
 
 # Largest bounding-box side (metres) each family is drawn to: the documented size ranges.
 SIZE_RANGE: dict[str, tuple[float, float]] = {
@@ -52,221 +50,6 @@ Array = np.ndarray
 
 
 # ----------------------------------------------------------------------------------------------
-# Building blocks (all lengths in metres)
-
-
-def _section(points: Array) -> mf.CrossSection:
-    """A 2D region from one closed polygon (either orientation)."""
-    p = np.asarray(points, dtype=np.float64)
-    area = 0.5 * np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])
-    return mf.CrossSection([p if area > 0 else p[::-1]])
-
-
-def _mirror(p: Array) -> Array:
-    """A profile (r, z) reflected to the -r side and reversed, to close a region symmetric about the axis."""
-    return np.asarray(p)[::-1] * [-1.0, 1.0]
-
-
-def _revolve(cs: mf.CrossSection, segments: int = SEGMENTS) -> mf.Manifold:
-    """Revolve the x >= 0 part of a region in the (r, z) plane about the z axis."""
-    return mf.Manifold.revolve(cs, segments)
-
-
-def _round(cs: mf.CrossSection, convex: float, concave: float = 0.0) -> mf.CrossSection:
-    """Fillet a region's convex corners with radius ``convex`` and its concave ones with ``concave``."""
-    if concave > 0:
-        cs = cs.offset(concave, mf.JoinType.Round, 2.0, 24).offset(-concave, mf.JoinType.Round, 2.0, 24)
-    if convex > 0:
-        cs = cs.offset(-convex, mf.JoinType.Round, 2.0, 24).offset(convex, mf.JoinType.Round, 2.0, 24)
-    return cs.simplify(2e-5)  # offsets leave runs of near-duplicate points
-
-
-def _solid_profile(profile: npt.ArrayLike) -> mf.CrossSection:
-    """The region under a profile (r, z) that starts on the axis at the bottom and ends on it at the top."""
-    p = np.asarray(profile, dtype=np.float64)
-    return _section(np.vstack([p, _mirror(p)]))
-
-
-def _vessel(outer: Array, wall: float, floor: float) -> tuple[mf.CrossSection, mf.CrossSection]:
-    """(wall, cavity) regions of an open-topped vessel in the (r, z) plane, symmetric about r = 0.
-
-    ``outer`` is the outer surface from the bottom edge (r0 > 0, z = 0) up to the rim (R, H). The
-    cavity is the inside offset by ``wall`` and lies above z = ``floor``; it is open above the rim.
-    The wall's outer corners are rounded (0.4 wall) and the inner floor corner filleted.
-    """
-    outer = np.asarray(outer, dtype=np.float64)
-    r_max, top = outer[:, 0].max(), outer[-1, 1]
-    ext = np.vstack([outer, [outer[-1, 0], top + 4 * wall]])
-    solid = _section(np.vstack([outer, _mirror(outer)]))
-    cavity = _section(np.vstack([ext, _mirror(ext)])).offset(-wall, mf.JoinType.Round, 2.0, 32)
-    cavity = cavity ^ mf.CrossSection.square((4 * r_max, 4 * top)).translate((-2 * r_max, floor))
-    return _round(solid - cavity, 0.4 * wall, min(2 * wall, 0.008)), cavity
-
-
-def _radius_at(outer: Array) -> Callable[[float], float]:
-    """Outer radius of a vessel profile at height z (profile heights increasing)."""
-    outer = np.asarray(outer)
-    return lambda z: float(np.interp(z, outer[:, 1], outer[:, 0]))
-
-
-def _rbox(size: tuple[float, float, float], r: float, segments: int = 24) -> mf.Manifold:
-    """A box of ``size`` centred at the origin with edges rounded to radius ``r``."""
-    h = np.maximum(np.asarray(size, dtype=np.float64) / 2 - r, 1e-5)
-    s = mf.Manifold.sphere(r, segments)
-    return mf.Manifold.batch_hull(
-        [s.translate((x, y, z)) for x in (-h[0], h[0]) for y in (-h[1], h[1]) for z in (-h[2], h[2])]
-    )
-
-
-def _tube(
-    points: npt.ArrayLike,
-    radii: npt.ArrayLike,
-    segments: int = 24,
-    squash: tuple[float, float, float] = (1.0, 1.0, 1.0),
-) -> mf.Manifold:
-    """A swept round bar: the union of hulls of consecutive balls (radius per point, optionally squashed)."""
-    pts = np.asarray(points, dtype=np.float64)
-    rad = np.broadcast_to(np.asarray(radii, dtype=np.float64), len(pts))
-    balls = [mf.Manifold.sphere(float(r), segments).scale(squash).translate(tuple(p)) for p, r in zip(pts, rad)]
-    return mf.Manifold.batch_boolean([mf.Manifold.batch_hull([a, b]) for a, b in pairwise(balls)], mf.OpType.Add)
-
-
-def _sweep(
-    path: npt.ArrayLike,
-    radii: npt.ArrayLike,
-    normal: npt.ArrayLike,
-    around: int = 24,
-    squash: float = 1.0,
-    round_ends: tuple[bool, bool] = (True, True),
-) -> mf.Manifold:
-    """A tube along a planar ``path`` (N, 3) with plane normal ``normal``: elliptical sections of radius
-    ``radii`` in the plane and ``squash * radii`` along the normal; ends are half-ellipsoids or flat.
-
-    The path's curvature radius must exceed the tube radius (no check).
-    """
-    P = np.asarray(path, dtype=np.float64)
-    R = np.broadcast_to(np.asarray(radii, dtype=np.float64), len(P)).copy()
-    keep = np.r_[True, np.linalg.norm(np.diff(P, axis=0), axis=1) > 1e-9]
-    P, R = P[keep], R[keep]
-    nrm = np.asarray(normal, dtype=np.float64) / np.linalg.norm(normal)
-    T = np.gradient(P, axis=0)
-    T /= np.linalg.norm(T, axis=1, keepdims=True)
-    for end, sign in ((0, -1.0), (-1, 1.0)):  # cap rings: a quarter ellipse down to a pole
-        if round_ends[end]:
-            a = np.linspace(0, np.pi / 2, 7)[1:-1]
-            rings = P[end] + sign * T[end] * (R[end] * np.sin(a))[:, None]
-            rr, tt = R[end] * np.cos(a), np.repeat(T[end][None], len(a), 0)
-            P, R, T = (
-                (np.vstack([rings[::-1], P]), np.concatenate([rr[::-1], R]), np.vstack([tt, T]))
-                if end == 0
-                else (np.vstack([P, rings]), np.concatenate([R, rr]), np.vstack([T, tt]))
-            )
-    e1 = np.cross(T, nrm)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    th = np.linspace(0, 2 * np.pi, around, endpoint=False)
-    ring = np.cos(th)[None, :, None] * e1[:, None] + squash * np.sin(th)[None, :, None] * nrm[None, None]
-    V = (P[:, None] + R[:, None, None] * ring).reshape(-1, 3)
-    poles = [P[0] - T[0] * (R[0] if round_ends[0] else 0.0), P[-1] + T[-1] * (R[-1] if round_ends[1] else 0.0)]
-    n, j = len(P), np.arange(around)
-    k = (j + 1) % around
-    faces = [np.stack([i * around + j, i * around + k, (i + 1) * around + k], 1) for i in range(n - 1)]
-    faces += [np.stack([i * around + j, (i + 1) * around + k, (i + 1) * around + j], 1) for i in range(n - 1)]
-    faces += [
-        np.stack([np.full(around, n * around), k, j], 1),
-        np.stack([np.full(around, n * around + 1), (n - 1) * around + j, (n - 1) * around + k], 1),
-    ]
-    V, F = np.vstack([V, poles]), np.vstack(faces)
-    if np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() < 0:
-        F = F[:, ::-1]
-    return mf.Manifold(mf.Mesh(vert_properties=V.astype(np.float32), tri_verts=F.astype(np.uint32)))
-
-
-def _fillet(corners: npt.ArrayLike, radius: npt.ArrayLike, n: int = 8) -> Array:
-    """A 2D polyline with each inner corner replaced by a circular arc of ``radius`` (clamped to fit)."""
-    c = np.asarray(corners, dtype=np.float64)
-    rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), len(c))
-    out = [c[0]]
-    for i in range(1, len(c) - 1):
-        a, b = c[i - 1] - c[i], c[i + 1] - c[i]
-        la, lb = np.linalg.norm(a), np.linalg.norm(b)
-        a, b = a / la, b / lb
-        half = np.arccos(np.clip(a @ b, -1, 1)) / 2
-        d = min(rad[i] / np.tan(half), 0.5 * la, 0.5 * lb)
-        r = d * np.tan(half)
-        centre = c[i] + (a + b) / np.linalg.norm(a + b) * r / np.sin(half)
-        p0, p1 = c[i] + a * d - centre, c[i] + b * d - centre
-        t0, t1 = np.arctan2(p0[1], p0[0]), np.arctan2(p1[1], p1[0])
-        t1 = t0 + (t1 - t0 + np.pi) % (2 * np.pi) - np.pi
-        t = np.linspace(t0, t1, n)
-        out.extend(centre + r * np.stack([np.cos(t), np.sin(t)], 1))
-    out.append(c[-1])
-    return np.asarray(out)
-
-
-def _handle(
-    radius_at: Callable[[float], float],
-    z_lo: float,
-    z_hi: float,
-    reach: float,
-    bar: float,
-    wall: float,
-    rng: np.random.Generator,
-    side: float = 1.0,
-) -> mf.Manifold:
-    """A D- or C-shaped handle in the x-z plane whose two ends sink into a wall of outer radius ``radius_at(z)``.
-
-    ``reach`` is how far the loop stands off the wall, ``bar`` the bar radius; ``side`` +1 puts it on +x.
-    """
-    x_hi, x_lo = radius_at(z_hi) - wall / 2, radius_at(z_lo) - wall / 2
-    far = max(radius_at(z_hi), radius_at(z_lo)) + reach
-    tilt = rng.uniform(-0.25, 0.25) * reach
-    corners = np.array([[x_hi, z_hi], [far + tilt, z_hi], [far - tilt, z_lo], [x_lo, z_lo]])
-    span = min(reach, (z_hi - z_lo) / 2)
-    path = _fillet(corners, [0, *(rng.uniform(min(1.6 * bar, span), span, 2)), 0], 10)
-    pts = np.stack([side * path[:, 0], np.zeros(len(path)), path[:, 1]], 1)
-    return _sweep(pts, bar, [0.0, 1.0, 0.0], 24, rng.uniform(1.0, 1.7), (False, False))
-
-
-def _radial_noise(m: mf.Manifold, rng: np.random.Generator, amp: float, waves: int = 4) -> mf.Manifold:
-    """Smooth lumps: scale each vertex's distance from the bounding-box centre by 1 + a sum of sinusoids
-    of its direction (always a valid deformation: directions are kept, radii stay positive)."""
-    lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
-    c = (lo + hi) / 2
-    d = rng.normal(size=(waves, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    freq, phase, a = rng.uniform(1.5, 4.0, waves), rng.uniform(0, 2 * np.pi, waves), rng.uniform(0.3, 1, waves) * amp
-
-    def warp(v: Array) -> Array:
-        off = np.asarray(v) - c
-        u = off / np.maximum(np.linalg.norm(off, axis=1, keepdims=True), 1e-12)
-        return c + off * (1 + (a * np.sin(u @ d.T * freq + phase)).sum(1))[:, None]
-
-    return m.warp_batch(warp)
-
-
-def _finish(m: mf.Manifold, size: float | None = None) -> trimesh.Trimesh:
-    """Check one closed body, optionally scale its largest side to ``size``, and place it (z min 0, x-y centred)."""
-    if m.status() != mf.Error.NoError or m.is_empty():
-        raise ValueError(f"manifold error {m.status()}")
-    bodies = len(m.decompose())
-    if bodies != 1:
-        raise ValueError(f"{bodies} bodies")
-    lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
-    if size is not None:
-        m = m.scale(tuple([size / float((hi - lo).max())] * 3))
-    if m.num_tri() < MIN_FACES:
-        m = m.refine(int(np.ceil(np.sqrt(MIN_FACES / m.num_tri()))))
-    if m.num_tri() > MAX_FACES:
-        m = m.simplify(2e-4)
-    out = m.to_mesh64()
-    v = np.asarray(out.vert_properties, dtype=np.float64)[:, :3]
-    lo, hi = v.min(0), v.max(0)
-    v = v - [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]]
-    # manifold's output is already an oriented closed mesh: keep its topology exactly (no vertex merging)
-    return trimesh.Trimesh(v, np.asarray(out.tri_verts, dtype=np.int64), process=False)
-
-
-# ----------------------------------------------------------------------------------------------
 # Families
 
 
@@ -278,12 +61,12 @@ def mug(rng: np.random.Generator) -> trimesh.Trimesh:
     wall = rng.uniform(0.003, 0.006)
     z = np.linspace(0, h, 12)
     outer = np.stack([r_bottom + (r - r_bottom) * z / h + belly * np.sin(np.pi * z / h), z], 1)
-    wall_cs, cavity = _vessel(outer, wall, rng.uniform(wall, 0.012))
+    wall_cs, cavity = S.vessel(outer, wall, rng.uniform(wall, 0.012))
     bar = rng.uniform(0.004, 0.0065)
     z_hi = h - bar - rng.uniform(0.006, 0.02)
     z_lo = max(rng.uniform(0.12, 0.35) * h, bar + 0.004, z_hi - 0.075)
-    handle = _handle(_radius_at(outer), z_lo, z_hi, rng.uniform(0.018, 0.032), bar, wall, rng)
-    return _finish(_revolve(wall_cs) + (handle - _revolve(cavity)))
+    handle = S.handle(S.profile_radius(outer), z_lo, z_hi, rng.uniform(0.018, 0.032), bar, wall, rng)
+    return S.finish(S.revolve(wall_cs) + (handle - S.revolve(cavity)))
 
 
 def cup(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -296,12 +79,12 @@ def cup(rng: np.random.Generator) -> trimesh.Trimesh:
     z = np.linspace(0, h, 10)
     s = z / h
     outer = np.stack([r_bottom + (r_top - r_bottom) * s ** rng.uniform(0.8, 1.3), z], 1)
-    wall_cs, _ = _vessel(outer, wall, floor)
+    wall_cs, _ = S.vessel(outer, wall, floor)
     if rng.random() < 0.4:  # rolled rim
         bead = rng.uniform(0.0015, 0.0025)
         ring = mf.CrossSection.circle(bead, 16)
         wall_cs = wall_cs + ring.translate((r_top, h - bead)) + ring.translate((-r_top, h - bead))
-    return _finish(_revolve(wall_cs))
+    return S.finish(S.revolve(wall_cs))
 
 
 def _foot(cs: mf.CrossSection, radius: float, width: float, height: float) -> mf.CrossSection:
@@ -322,10 +105,10 @@ def bowl(rng: np.random.Generator) -> trimesh.Trimesh:
     outer = np.stack(
         [r0 + (r - r0) * np.sin(phi) ** rng.uniform(0.8, 1.2), (h - hf) * (1 - np.cos(phi) ** rng.uniform(0.8, 1.4))], 1
     )
-    wall_cs, _ = _vessel(outer, wall, wall)
+    wall_cs, _ = S.vessel(outer, wall, wall)
     if foot:
         wall_cs = _foot(wall_cs, r0 * rng.uniform(0.8, 1.1), rng.uniform(0.003, 0.006), hf)
-    return _finish(_revolve(wall_cs, 80))
+    return S.finish(S.revolve(wall_cs, 80))
 
 
 def plate(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -342,10 +125,10 @@ def plate(rng: np.random.Generator) -> trimesh.Trimesh:
     rise = np.stack([r0 + (r1 - r0) * s, h1 * (3 * s**2 - 2 * s**3)], 1)
     rim = np.stack([np.linspace(r1, r, 8)[1:], np.linspace(h1, top, 8)[1:]], 1)
     outer = np.vstack([rise, rim, [[r, top + t]]])
-    wall_cs, _ = _vessel(outer, t, t)
+    wall_cs, _ = S.vessel(outer, t, t)
     if foot:
         wall_cs = _foot(wall_cs, r0 * rng.uniform(0.85, 1.0), rng.uniform(0.003, 0.006), hf)
-    return _finish(_revolve(wall_cs, 96))
+    return S.finish(S.revolve(wall_cs, 96))
 
 
 def _bottle_profile(
@@ -393,11 +176,11 @@ def bottle(rng: np.random.Generator) -> trimesh.Trimesh:
     prof, z0, z1 = _bottle_profile(
         rng, h, r_body, r_cap - rng.uniform(0.001, 0.003), rng.uniform(0.005, 0.04), rng.uniform(0.015, 0.03), r_cap
     )
-    m = _revolve(_solid_profile(prof), 96)
+    m = S.revolve(S.solid_profile(prof), 96)
     variant = rng.choice(["round", "oval", "square"])
     if variant != "round":
         m = _reshape(m, rng.uniform(0.55, 0.9), rng.uniform(3, 6) if variant == "square" else 2.0, z0, z1)
-    return _finish(m)
+    return S.finish(m)
 
 
 def can(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -416,7 +199,7 @@ def can(rng: np.random.Generator) -> trimesh.Trimesh:
             [[r - n + 0.0005, h - e], [r - n + 0.0005, h], [r - n - w, h], [r - n - w, h - lid], [0.0, h - lid]],
         ]
     )
-    return _finish(_revolve(_round(_solid_profile(prof), 0.0006), 72))
+    return S.finish(S.revolve(S.rounded(S.solid_profile(prof), 0.0006), 72))
 
 
 def box(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -432,7 +215,7 @@ def box(rng: np.random.Generator) -> trimesh.Trimesh:
         dims[2] = max(dims[2], 0.05)
         dims = [dims[i] for i in rng.permutation(3)]
     r = rng.uniform(0.001, min(0.006, 0.2 * min(dims)))
-    return _finish(_rbox((dims[0], dims[1], dims[2]), r, 32))
+    return S.finish(S.rounded_box((dims[0], dims[1], dims[2]), r, 32))
 
 
 def spray_bottle(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -444,30 +227,32 @@ def spray_bottle(rng: np.random.Generator) -> trimesh.Trimesh:
     body_h = h - collar_h - col_h - shroud_h
     r_body = rng.uniform(0.03, 0.05)
     prof, z0, z1 = _bottle_profile(rng, body_h + collar_h, r_body, rc - 0.002, collar_h * 0.3, collar_h * 0.7, rc)
-    m = _reshape(_revolve(_solid_profile(prof)), rng.uniform(0.5, 0.9), rng.choice([2.0, rng.uniform(2.5, 4)]), z0, z1)
+    m = _reshape(
+        S.revolve(S.solid_profile(prof)), rng.uniform(0.5, 0.9), rng.choice([2.0, rng.uniform(2.5, 4)]), z0, z1
+    )
     zt = body_h + collar_h  # top of the screw collar
     cw = 2 * rc * rng.uniform(0.75, 0.95)
-    column = _rbox((cw, cw, col_h + 0.004), 0.004, 16).translate((0, 0, zt + col_h / 2 - 0.002))
+    column = S.rounded_box((cw, cw, col_h + 0.004), 0.004, 16).translate((0, 0, zt + col_h / 2 - 0.002))
     tab_x, gap = rng.uniform(0.007, 0.011), rng.uniform(0.004, 0.009)
     x0 = cw / 2 + gap + tab_x / 2  # the trigger hangs in front of the column, above the collar
     back = cw / 2 + rng.uniform(0.0, 0.01)
     length = max(rng.uniform(0.06, 0.09), back + x0 + tab_x / 2 + 0.008)
     front = length - back
-    shroud = _rbox((length, cw * rng.uniform(0.9, 1.25), shroud_h), min(0.008, 0.3 * shroud_h), 16)
+    shroud = S.rounded_box((length, cw * rng.uniform(0.9, 1.25), shroud_h), min(0.008, 0.3 * shroud_h), 16)
     z_shroud = zt + col_h + shroud_h / 2 - 0.001
     head = column + shroud.translate((length / 2 - back, 0, z_shroud))
     nr = rng.uniform(0.004, 0.007)
     nozzle = mf.Manifold.cylinder(rng.uniform(0.006, 0.014), nr, nr * 0.8, 24).rotate((0, 90, 0))
     nozzle = nozzle.translate((front - 0.003, 0, z_shroud + rng.uniform(-0.3, 0.3) * (shroud_h / 2 - nr)))
     tl = col_h * rng.uniform(0.6, 0.9)
-    tab = _rbox((tab_x, cw * 0.7, 0.006), 0.0025, 12)
+    tab = S.rounded_box((tab_x, cw * 0.7, 0.006), 0.0025, 12)
     trigger = mf.Manifold.batch_hull(
         [
             tab.translate((x0, 0, zt + col_h + 0.004)),
             tab.translate((x0 + rng.uniform(0.0, 0.01), 0, zt + col_h - tl + 0.003)),
         ]
     )
-    return _finish(m + head + nozzle + trigger)
+    return S.finish(m + head + nozzle + trigger)
 
 
 def drill(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -478,11 +263,11 @@ def drill(rng: np.random.Generator) -> trimesh.Trimesh:
     bat = (rng.uniform(0.065, 0.10), rng.uniform(0.05, 0.075), rng.uniform(0.025, 0.04))
     grip_len, rake = rng.uniform(0.07, 0.10), np.radians(rng.uniform(5, 25))
     rg = rng.uniform(0.014, 0.018)
-    battery = _rbox(bat, 0.006, 24).translate((0, 0, bat[2] / 2))
+    battery = S.rounded_box(bat, 0.006, 24).translate((0, 0, bat[2] / 2))
     g0 = np.array([0.0, 0.0, bat[2] - 0.01])
     g1 = g0 + [grip_len * np.sin(rake), 0, grip_len * np.cos(rake)]
     z_axis = g1[2] + rb * 0.6
-    grip = _tube([g0, g1 + [0, 0, rb * 0.3]], rg, 40, (rng.uniform(1.1, 1.4), 0.8, 1.0))
+    grip = S.tube([g0, g1 + [0, 0, rb * 0.3]], rg, 40, (rng.uniform(1.1, 1.4), 0.8, 1.0))
     chuck_len = rng.uniform(0.03, 0.05)
     body_len = length - chuck_len
     x_rear = g1[0] - rg - body_len * rng.uniform(0.05, 0.25)
@@ -492,8 +277,8 @@ def drill(rng: np.random.Generator) -> trimesh.Trimesh:
     body = mf.Manifold.batch_hull([rear, barrel])
     rc = front_r * rng.uniform(0.55, 0.75)
     tip, step = rc * rng.uniform(0.45, 0.7), rng.uniform(0.3, 0.5)
-    chuck = _revolve(
-        _solid_profile(
+    chuck = S.revolve(
+        S.solid_profile(
             [
                 [0.0, 0.0],
                 [rc, 0],
@@ -508,9 +293,11 @@ def drill(rng: np.random.Generator) -> trimesh.Trimesh:
     )
     chuck = chuck.rotate((0, 90, 0))
     chuck = chuck.translate((x_rear + body_len - 0.002, 0, 0))
-    trigger = _rbox((0.012, 0.012, rng.uniform(0.02, 0.03)), 0.004, 12).translate((g1[0] + rg * 0.9, 0, g1[2] - 0.012))
+    trigger = S.rounded_box((0.012, 0.012, rng.uniform(0.02, 0.03)), 0.004, 12).translate(
+        (g1[0] + rg * 0.9, 0, g1[2] - 0.012)
+    )
     top = (body + chuck).translate((0, 0, z_axis))
-    return _finish(battery + grip + top + trigger, length)
+    return S.finish(battery + grip + top + trigger, length)
 
 
 def banana(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -524,7 +311,7 @@ def banana(rng: np.random.Generator) -> trimesh.Trimesh:
     rad = thick * np.maximum(np.sin(np.pi * np.clip(t * 1.04 - 0.01, 0, 1)) ** rng.uniform(0.4, 0.7), 0.22)
     tang = np.array([np.cos(ang[-1]), np.sin(ang[-1]), 0.0])
     stalk = pts[-1] + tang[None] * np.linspace(0.01, rng.uniform(0.05, 0.09), 5)[:, None]
-    m = _sweep(np.vstack([pts, stalk]), np.append(rad, np.full(5, thick * 0.2)), [0.0, 0.0, 1.0], 40)
+    m = S.sweep(np.vstack([pts, stalk]), np.append(rad, np.full(5, thick * 0.2)), [0.0, 0.0, 1.0], 40)
     amp, centre = rng.uniform(0.03, 0.07), np.array([0.0, radius, 0.0])
 
     def ridges(v: Array) -> Array:  # rounded-pentagon cross-sections around the arc
@@ -539,7 +326,7 @@ def banana(rng: np.random.Generator) -> trimesh.Trimesh:
         return v
 
     size = rng.uniform(0.15, 0.22)
-    return _finish(m.warp_batch(ridges), size)
+    return S.finish(m.warp_batch(ridges), size)
 
 
 def pitcher(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -551,8 +338,8 @@ def pitcher(rng: np.random.Generator) -> trimesh.Trimesh:
     knots_r[3] = knots_r[2] * rng.uniform(1.0, 1.15)
     z = h * np.sin(np.linspace(0, np.pi / 2, 28))  # dense near the rim, where the spout is pulled
     outer = np.stack([PchipInterpolator(knots_z, knots_r)(z), z], 1)
-    wall_cs, cavity = _vessel(outer, wall, wall + rng.uniform(0, 0.004))
-    body = _revolve(wall_cs, 96)
+    wall_cs, cavity = S.vessel(outer, wall, wall + rng.uniform(0, 0.004))
+    body = S.revolve(wall_cs, 96)
     spout_h, push, width = rng.uniform(0.02, 0.045), rng.uniform(0.01, 0.022), rng.uniform(0.25, 0.5)
 
     def spout(v: Array) -> Array:
@@ -566,10 +353,10 @@ def pitcher(rng: np.random.Generator) -> trimesh.Trimesh:
 
     bar = rng.uniform(0.006, 0.009)
     z_hi = h - bar - rng.uniform(0.008, 0.025)
-    handle = _handle(
-        _radius_at(outer), rng.uniform(0.2, 0.45) * h, z_hi, rng.uniform(0.025, 0.04), bar, wall, rng, -1.0
+    handle = S.handle(
+        S.profile_radius(outer), rng.uniform(0.2, 0.45) * h, z_hi, rng.uniform(0.025, 0.04), bar, wall, rng, -1.0
     )
-    return _finish(body.warp_batch(spout) + (handle - _revolve(cavity, 96)))
+    return S.finish(body.warp_batch(spout) + (handle - S.revolve(cavity, 96)))
 
 
 def jar(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -592,12 +379,12 @@ def jar(rng: np.random.Generator) -> trimesh.Trimesh:
             [[rn, h - lid], [rl, h - lid], [rl, h], [0.0, h]],
         ]
     )
-    cs = _round(_solid_profile(prof), 0.0015)
+    cs = S.rounded(S.solid_profile(prof), 0.0015)
     if rng.random() < 0.6:  # grip grooves on the lid
         g = mf.CrossSection.circle(0.0008, 8)
         for zg in np.linspace(h - lid, h, rng.integers(3, 6))[1:-1]:
             cs = cs - g.translate((rl, zg)) - g.translate((-rl, zg))
-    return _finish(_revolve(cs, 80))
+    return S.finish(S.revolve(cs, 80))
 
 
 def fruit(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -626,7 +413,7 @@ def fruit(rng: np.random.Generator) -> trimesh.Trimesh:
         zp = -rho * np.cos(phi) - dip * np.sign(-np.cos(phi))
         prof = np.stack([rho * np.sin(phi), zp], 1)
         prof[[0, -1], 0] = 0.0
-        m = _revolve(_solid_profile(prof), 64)
+        m = S.revolve(S.solid_profile(prof), 64)
         top = float(prof[-1, 1])
         m = m + mf.Manifold.cylinder(rng.uniform(0.15, 0.3), 0.04, 0.03, 12).translate((0, 0, top - 0.05))
         m = m.scale((1, 1, rng.uniform(0.85, 0.95)))
@@ -637,10 +424,10 @@ def fruit(rng: np.random.Generator) -> trimesh.Trimesh:
         neck = np.clip((u - rng.uniform(0.3, 0.4)) / rng.uniform(0.35, 0.5), 0, 1)
         rz = 2 * np.sqrt(u * (1 - u)) * (1 - rng.uniform(0.35, 0.55) * (3 * neck**2 - 2 * neck**3))
         z = u * h
-        m = _revolve(_solid_profile(np.stack([rz, z], 1)), 64)
+        m = S.revolve(S.solid_profile(np.stack([rz, z], 1)), 64)
         m = m + mf.Manifold.cylinder(0.3, 0.05, 0.035, 12).translate((0, 0, h - 0.05))
         size = rng.uniform(0.08, 0.11)
-    return _finish(_radial_noise(m, rng, rng.uniform(0.01, 0.03)), size)
+    return S.finish(S.radial_noise(m, rng, rng.uniform(0.01, 0.03)), size)
 
 
 def tool(rng: np.random.Generator) -> trimesh.Trimesh:
@@ -649,10 +436,10 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
     size = rng.uniform(0.15, 0.30)
     if kind == "hammer":  # unit-free sketch, scaled to `size` (the handle's length) at the end
         ry, rz = rng.uniform(0.045, 0.065), rng.uniform(0.035, 0.05)
-        handle = _tube([[0.0, 0.0, 0.0], [1.0, 0, 0]], ry, 24, (1.0, 1.0, rz / ry))
+        handle = S.tube([[0.0, 0.0, 0.0], [1.0, 0, 0]], ry, 24, (1.0, 1.0, rz / ry))
         hw, hl = rng.uniform(0.08, 0.11), rng.uniform(0.35, 0.5)
         face = mf.Manifold.cylinder(hl * 0.55, hw * 0.7, hw * 0.6, 32).rotate((-90, 0, 0))
-        claw = _rbox((hw * 1.2, hl * 0.5, hw * 0.9), 0.01, 12).translate((0, -hl * 0.2, 0))
+        claw = S.rounded_box((hw * 1.2, hl * 0.5, hw * 0.9), 0.01, 12).translate((0, -hl * 0.2, 0))
         head = (face + claw).translate((1.0, hl * 0.2, 0))
         m = handle + head
     elif kind == "screwdriver":
@@ -662,7 +449,7 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
         bulge = hr * (1 + 0.12 * np.sin(np.pi * zz / hlen))
         bulge[[0, -1]] *= 0.85
         prof = np.vstack([[[0.0, 0.0]], np.stack([bulge, zz], 1), [[0.0, hlen]]])
-        hnd = _revolve(_round(_solid_profile(prof), 0.01), 64)
+        hnd = S.revolve(S.rounded(S.solid_profile(prof), 0.01), 64)
         flutes = rng.uniform(0.03, 0.07)
 
         def flute(v: Array) -> Array:
@@ -677,12 +464,12 @@ def tool(rng: np.random.Generator) -> trimesh.Trimesh:
     else:
         hlen = rng.uniform(0.5, 0.65)
         hy = rng.uniform(0.04, 0.06)
-        handle = _tube([[0.0, 0.0, 0.0], [hlen, 0, 0]], hy, 24, (1.0, 1.0, rng.uniform(0.5, 0.8)))
+        handle = S.tube([[0.0, 0.0, 0.0], [hlen, 0, 0]], hy, 24, (1.0, 1.0, rng.uniform(0.5, 0.8)))
         bw, bl, bt = rng.uniform(0.2, 0.35), 1.0 - hlen - 0.1, rng.uniform(0.012, 0.02)
-        blade = _rbox((bl, bw, bt), bt * 0.45, 12).translate((1.0 - bl / 2, 0, -0.03))
-        neck = _tube([[hlen - 0.02, 0, 0], [1.0 - bl + 0.02, 0, -0.03]], 0.02, 16, (1.0, 1.0, 0.6))
+        blade = S.rounded_box((bl, bw, bt), bt * 0.45, 12).translate((1.0 - bl / 2, 0, -0.03))
+        neck = S.tube([[hlen - 0.02, 0, 0], [1.0 - bl + 0.02, 0, -0.03]], 0.02, 16, (1.0, 1.0, 0.6))
         m = handle + neck + blade
-    return _finish(m, size)
+    return S.finish(m, size)
 
 
 FAMILIES: dict[str, Callable[[np.random.Generator], trimesh.Trimesh]] = {
