@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.evaluation.results import ResultsStore, view_stem
+from shapeviewer.evaluation.records import view_stem
+from shapeviewer.evaluation.results import ResultsStore
 
 from helpers import browser_page, free_port, needs_browser, wait_until
 from store_factory import VIEWS, make_store

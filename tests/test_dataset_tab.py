@@ -12,7 +12,8 @@ import trimesh
 
 from shapeviewer.camera import transform_points
 from shapeviewer.evaluation import run as ev
-from shapeviewer.evaluation.results import ResultsStore, view_stem
+from shapeviewer.evaluation.records import view_stem
+from shapeviewer.evaluation.results import ResultsStore
 from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view

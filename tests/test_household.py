@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from shapeviewer.geometry import raycasting_scene
-from shapeviewer.sim import catalogue, household
+from shapeviewer.sim import catalogue, household, solids
 
 INDICES = (0, 1, 7)
 HOLLOW = ("mug", "cup", "bowl", "pitcher")
@@ -40,7 +40,7 @@ def test_every_family_makes_valid_solids_of_its_size(kind, meshes):
         assert m.is_watertight and m.is_winding_consistent, (kind, i)
         assert m.volume > 0, (kind, i)
         assert len(m.split(only_watertight=False)) == 1, (kind, i)
-        assert household.MIN_FACES <= len(m.faces) <= household.MAX_FACES, (kind, i, len(m.faces))
+        assert solids.MIN_FACES <= len(m.faces) <= solids.MAX_FACES, (kind, i, len(m.faces))
         assert lo - 1e-6 <= m.extents.max() <= hi + 1e-6, (kind, i, m.extents)
         # object frame: resting on z = 0, bounding box centred on the x-y origin
         assert m.bounds[0, 2] == pytest.approx(0.0, abs=1e-9)

@@ -20,7 +20,8 @@ import trimesh
 import viser
 
 from ...camera import Intrinsics, transform_points
-from ...evaluation.results import GraspSummary, ResultsStore, ViewInfo, read_mesh, read_points
+from ...evaluation.results import ResultsStore, read_mesh, read_points
+from ...evaluation.summaries import GraspSummary, ViewInfo
 from .layout import DEFAULT_ASPECT, ViewLayout
 from .summary import COLORS
 

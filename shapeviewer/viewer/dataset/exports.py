@@ -9,7 +9,8 @@ import numpy as np
 
 from ... import export
 from ...evaluation.records import KINDS
-from ...evaluation.results import GraspSummary, ObjectSummary, ResultsStore, ViewInfo
+from ...evaluation.results import ResultsStore
+from ...evaluation.summaries import GraspSummary, ObjectSummary, ViewInfo
 from .summary import TITLES
 
 

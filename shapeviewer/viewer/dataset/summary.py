@@ -13,14 +13,8 @@ import math
 import numpy as np
 
 from ...evaluation.records import METHODS
-from ...evaluation.results import (
-    HIGHER_IS_BETTER,
-    METRIC_TITLES,
-    CompletionResult,
-    GraspSummary,
-    ObjectSummary,
-    ViewInfo,
-)
+from ...evaluation.results import HIGHER_IS_BETTER, METRIC_TITLES
+from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
 from ...evaluation.tables import SHORT_METHOD, fmt, fmt_share
 from ...evaluation.viewsets import SET_TITLES
 

@@ -13,8 +13,9 @@ from pathlib import Path
 import viser
 
 from ...evaluation.records import KINDS
-from ...evaluation.results import CompletionResult, GraspSummary, ObjectSummary, ResultsStore, ViewInfo
+from ...evaluation.results import ResultsStore
 from ...evaluation.run import sample_store_complete, sample_store_dir
+from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
 from ...evaluation.tables import panel_markdown
 from ..jobs import send_download
 from .controls import DatasetControls, build_controls

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import viser
 
-from ...evaluation.results import ObjectSummary
 from ...evaluation.run import build_sample_store
+from ...evaluation.summaries import ObjectSummary
 from ..gui import set_value
 from .controls import DatasetControls
 from .summary import bars_png, worst_first
