@@ -140,7 +140,7 @@ def load_capture(
     suffix = path.suffix.lower()
     if suffix in CLOUD_SUFFIXES:
         capture = load_cloud(path, intrinsics)
-    elif suffix == ".npy" and _npy_holds_points(path):
+    elif suffix == ".npy" and npy_holds_points(path):
         capture = load_npy_points(path, intrinsics)
     elif suffix in DEPTH_SUFFIXES:
         capture = load_depth(path, intrinsics)
@@ -238,7 +238,7 @@ def _organized_intrinsics(points: np.ndarray, intrinsics: Intrinsics | None, pat
     return intrinsics
 
 
-def _npy_holds_points(path: Path) -> bool:
+def npy_holds_points(path: Path) -> bool:
     """Whether a ``.npy`` file's header says (N, 3) or (H, W, 3), i.e. points rather than a depth image."""
     try:
         with open(path, "rb") as f:

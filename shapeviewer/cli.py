@@ -1,6 +1,6 @@
 """The ``shapeviewer`` command: the viewer's jobs, headless.
 
-shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR]
+shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR] [--data-dir DIR]
 shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
 shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
 shapeviewer objects
@@ -103,6 +103,7 @@ def cmd_serve(args) -> int:
             intrinsics=_intrinsics(args),
             results=args.results,
             allow_hosts=tuple(args.allow_host),
+            data_dir=args.data_dir,
         )
     except OSError as e:  # e.g. a bad --cloud path: say so instead of a traceback
         print(f"error: {e}", file=sys.stderr)
@@ -395,6 +396,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME",
         help="another name browsers reach this server by (besides localhost and --host); repeatable",
+    )
+    s.add_argument(
+        "--data-dir",
+        default=None,
+        metavar="DIR",
+        help="a folder whose capture files browsers may load (default: none; browsers can upload their own)",
     )
     _add_input_args(s)
     s.set_defaults(func=cmd_serve)

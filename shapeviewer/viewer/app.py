@@ -33,20 +33,22 @@ import viser
 from PIL import Image
 
 from ..camera import Intrinsics
-from ..capture import Capture, load_capture
+from ..capture import Capture, CaptureError, load_capture
 from ..model import load_completer, training_curves
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points
 from . import panel as P
+from . import sources
 from .dataset import DEFAULT, DatasetHooks, DatasetTab
 from .drawing import PipelineDrawing
 from .exports import segment_export
 from .grasps import GraspController, GraspHost, GraspJob
 from .guard import Guard, server_url, start_server
 from .gui import set_value
-from .jobs import READY, JobSlot, notify_clients, send_download
+from .jobs import READY, JobSlot, notify_clients
 from .rays import first_hit
 from .state import MESH_TITLES, LoadedScene, load_scene, make_mesh
 from .visuals import confidence_figures
+from .wiring import wire_callbacks
 
 if TYPE_CHECKING:
     from viser._gui_api import LiteralColor
@@ -71,6 +73,8 @@ class ViewerApp:
         results: the Dataset tab's results store: a folder written by ``shapeviewer evaluate``,
             :data:`~.dataset.DEFAULT` (a small sample store, built in the background on first use), or
             None (none).
+        data_dir: a folder of the server whose capture files browsers may load ("Server file"
+            dropdown; nothing outside it). None (default): browsers can only upload their own files.
     """
 
     def __init__(
@@ -86,7 +90,12 @@ class ViewerApp:
         results: str | Path | None = None,
         token: str | None = None,
         allow_hosts: tuple[str, ...] = (),
+        data_dir: str | Path | None = None,
     ) -> None:
+        self.data_dir = None if data_dir is None else Path(data_dir).expanduser().resolve()
+        if self.data_dir is not None and not self.data_dir.is_dir():
+            raise NotADirectoryError(f"--data-dir {data_dir}: not a folder")
+        self.max_upload_bytes = P.MAX_UPLOAD_MB * 1024 * 1024
         # Only this machine's browser (or, off localhost, holders of the token) may drive the app.
         self.guard = Guard.for_host(host, token, allow_hosts)
         self.server = start_server(host, port, self.guard)
@@ -98,8 +107,8 @@ class ViewerApp:
         self.selected: int | None = None
         self.last_timings: dict[str, float] = {}
         self.last_error: str | None = None
-        self._loading_notes: dict[int, viser.NotificationHandle] = {}
-        self._segment_options: dict[str, int] = {}  # dropdown entry -> segment id
+        self.loading_notes: dict[int, viser.NotificationHandle] = {}
+        self.segment_options: dict[str, int] = {}  # dropdown entry -> segment id
         self.dataset: DatasetTab | None = None
 
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
@@ -110,7 +119,7 @@ class ViewerApp:
         pipeline_tab = tabs.add_tab("Pipeline", viser.Icon.CUBE)
         dataset_tab = tabs.add_tab("Dataset", viser.Icon.DATABASE)
         with pipeline_tab:
-            self.panel = P.build_panel(self.server.gui, seed)
+            self.panel = P.build_panel(self.server.gui, seed, None if self.data_dir is None else self.data_files())
         self.drawing = PipelineDrawing(self.server, max_cloud_points)
         self.jobs = JobSlot(self.panel.job_buttons, self.notify, self._clear_loading_notes)
         host_api = GraspHost(
@@ -125,7 +134,7 @@ class ViewerApp:
         with pipeline_tab:
             # The Grasps folder goes right after Completion (viser orders folders by a global counter).
             self.grasps = GraspController(self.server, host_api, order=self.panel.timings.order + 0.5)
-        self._wire_callbacks()
+        wire_callbacks(self)
         if announce is not None:
             announce(self.url)
 
@@ -182,6 +191,51 @@ class ViewerApp:
     def load_cloud(self, path: str | Path, client: viser.ClientHandle | None = None) -> bool:
         """Load and show a capture file. On a bad file: False, an error notification, old scene kept."""
         return self._load(lambda: self._read_capture(path), str(path), client)
+
+    def load_upload(self, name: str, content: bytes, client: viser.ClientHandle | None = None) -> bool:
+        """Load and show a capture a browser uploaded (``name``: the browser's file name, whose suffix
+        picks the reader; ``content``: the file). On a bad file: False, an error notification, old
+        scene kept. The bytes are read from a private temporary folder (:func:`.sources.read_upload`).
+        """
+        shown = sources.upload_name(name)
+        problem = sources.upload_problem(shown, len(content), self.max_upload_bytes)
+        if problem is not None:
+            self.notify(client, "Could not load the capture", f"{shown}: {problem}", "red")
+            return False
+        notes: list[str] = []
+
+        def read() -> Capture:
+            capture, note = sources.read_upload(shown, content, self.intrinsics)
+            notes.extend([note] if note else [])
+            return capture
+
+        ok = self._load(read, shown, client)
+        if ok and notes:
+            self.notify(client, "Assumed intrinsics", notes[0], "yellow", auto_close=15.0)
+        return ok
+
+    def data_files(self) -> tuple[str, ...]:
+        """Names of the capture files in the data folder (:func:`.sources.data_files`)."""
+        return sources.data_files(self.data_dir)
+
+    def load_data_file(self, name: str, client: viser.ClientHandle | None = None) -> bool:
+        """Load a capture file of the data folder (``name`` relative to it). Anything that resolves
+        outside the folder is refused; without a data folder every path is."""
+        if self.data_dir is None:
+            self.notify(
+                client, "Server files are off", "Start the server with --data-dir DIR to load its files.", "red"
+            )
+            return False
+        name = str(name).strip()
+        if not name or name == P.NO_DATA_FILE:
+            self.notify(client, "No file chosen", "The server's data folder has no .pcd/.ply/.png/.npy file.", "red")
+            return False
+        try:
+            path = sources.data_file(self.data_dir, name)
+        except CaptureError as e:
+            self.notify(client, "Could not load the capture", str(e), "red")
+            return False
+        return self.load_cloud(path, client)
 
     def load_capture(self, capture: Capture, client: viser.ClientHandle | None = None) -> bool:
         """Show an already loaded capture."""
@@ -460,9 +514,9 @@ class ViewerApp:
         assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_completion(self.scene, c, self.panel.shade_output.value)
         if self.panel.layers["confidence"].value:
-            self._show_confidence(c)
+            self.show_confidence(c)
 
-    def _show_confidence(self, c: Completion) -> None:
+    def show_confidence(self, c: Completion) -> None:
         """The Confidence layer of ``c`` and its figures in the stage panel; the 8 sample
         completions it needs (about 8 CNN passes) are made on first use."""
         if c.samples is None:
@@ -534,8 +588,8 @@ class ViewerApp:
         if decimated is not None or sent < n_valid:
             decimated = "; ".join(filter(None, [decimated, f"showing {sent:,} points"]))
             self.panel.source.content += f"  \n_{decimated}_"
-        self._segment_options = scene.segment_options
-        self.panel.segment.options = (P.NO_SEGMENT, *self._segment_options)
+        self.segment_options = scene.segment_options
+        self.panel.segment.options = (P.NO_SEGMENT, *self.segment_options)
         set_value(self.panel.segment, P.NO_SEGMENT)
         if capture.colors is None:
             set_value(self.panel.cloud_colors, "depth")
@@ -555,7 +609,7 @@ class ViewerApp:
         if segment_id is None:
             set_value(self.panel.segment, P.NO_SEGMENT)
             return
-        set_value(self.panel.segment, next(o for o, sid in self._segment_options.items() if sid == segment_id))
+        set_value(self.panel.segment, next(o for o, sid in self.segment_options.items() if sid == segment_id))
 
     def _set_status(self, text: str) -> None:
         self.panel.status.content = text
@@ -575,109 +629,23 @@ class ViewerApp:
             return None if c is None else c.fast_mesh
         return self.compute_mesh(kind, segment_id, client)
 
-    def _wire_callbacks(self) -> None:
-        p = self.panel
-
-        @self.server.scene.on_click()
-        def _(event: viser.SceneClickEvent) -> None:
-            if self.drawing.visible:  # the dataset is on screen: its clicks are not picks
-                self.click(np.asarray(event.ray_origin), np.asarray(event.ray_direction), event.client)
-
-        # First, so that a segment's grasps are listed before completing it starts.
-        p.segment.on_update(lambda _event: self.grasps.follow_segment(self._segment_options.get(p.segment.value)))
-
-        @p.segment.on_update
-        def _(event: viser.GuiEvent) -> None:
-            sid = self._segment_options.get(p.segment.value)
-            if event.client is None or sid == self.selected:
-                return  # set by the app itself, or no change
-            if sid is None:
-                self.selected = None
-            else:
-                self.complete(sid, event.client)
-
-        @p.complete.on_click
-        def _(event: viser.GuiEvent) -> None:
-            if self.selected is None:
-                self.notify(event.client, "No segment selected", "Click a segment or pick one above.", "yellow")
-            else:
-                self.complete(self.selected, event.client)
-
-        @p.complete_all.on_click
-        def _(event: viser.GuiEvent) -> None:
-            self.complete_all(event.client)
-
-        for button, kind in ((p.detailed, "detailed"), (p.partial, "partial"), (p.mirror, "mirror"), (p.hull, "hull")):
-
-            def compute(event: viser.GuiEvent, kind: str = kind) -> None:
-                self.compute_mesh(kind, None, event.client)
-
-            button.on_click(compute)
-
-        @p.new_scene.on_click
-        def _(event: viser.GuiEvent) -> None:
-            self.load_default(int(p.seed.value), event.client)
-
-        @p.load_cloud.on_click
-        def _(event: viser.GuiEvent) -> None:
-            self.load_cloud(p.cloud_path.value, event.client)
-
-        for key, box in p.layers.items():
-
-            def toggle(_event: viser.GuiEvent, key: str = key, box: viser.GuiCheckboxHandle = box) -> None:
-                self.drawing.set_layer(key, box.value)
-
-            box.on_update(toggle)
-
-        @p.layers["confidence"].on_update
-        def _(_event: viser.GuiEvent) -> None:
-            if p.layers["confidence"].value:
-                for c in list(self.completions.values()):
-                    self._show_confidence(c)
-
-        @p.cloud_colors.on_update
-        def _(_event: viser.GuiEvent) -> None:
-            if self.scene is not None:
-                self.drawing.draw_cloud(self.scene, p.cloud_colors.value == "capture")
-
-        @p.shade_output.on_update
-        def _(_event: viser.GuiEvent) -> None:
-            if self.scene is not None:  # there are completions only once there is a scene
-                for c in list(self.completions.values()):
-                    self.drawing.draw_output(self.scene, c, p.shade_output.value)
-
-        for button, kind in ((p.export_points, "points"), (p.export_grids, "grids"), (p.export_mesh, "mesh")):
-
-            def export(event: viser.GuiEvent, kind: str = kind) -> None:
-                send_download(
-                    event.client,
-                    lambda: self.export_bytes(
-                        kind, None, p.mesh_format.value, p.export_frame.value, p.export_mesh_kind.value
-                    ),
-                    self.notify,
-                )
-
-            button.on_click(export)
-
-        self.server.on_client_connect(self._on_connect)
-
-        @self.server.on_client_disconnect
-        def _(client: viser.ClientHandle) -> None:
-            self._loading_notes.pop(client.client_id, None)
-
     # ------------------------------------------------------------------------------------------
     # Notifications
 
-    def _on_connect(self, client: viser.ClientHandle) -> None:
+    def on_connect(self, client: viser.ClientHandle) -> None:
+        if self.panel.cloud_path is not None:  # files may have come or gone since the last visit
+            options = P.data_file_options(self.data_files())
+            if tuple(self.panel.cloud_path.options) != options:
+                self.panel.cloud_path.options = options
         if self.scene is None:  # still building the first scene
-            self._loading_notes[client.client_id] = client.add_notification(
+            self.loading_notes[client.client_id] = client.add_notification(
                 "Loading the scene", "Generating and segmenting the capture...", loading=True, with_close_button=False
             )
 
     def _clear_loading_notes(self) -> None:
-        for note in self._loading_notes.values():
+        for note in self.loading_notes.values():
             note.remove()
-        self._loading_notes.clear()
+        self.loading_notes.clear()
 
     def _show_loading(self, client: viser.ClientHandle | None, body: str) -> list[viser.NotificationHandle]:
         clients = [client] if client is not None else list(self.server.get_clients().values())
@@ -694,12 +662,14 @@ def serve(
     block: bool = True,
     results: str | Path | None = None,
     allow_hosts: tuple[str, ...] = (),
+    data_dir: str | Path | None = None,
 ) -> ViewerApp:
     """Start the viewer (``python app.py`` and ``shapeviewer serve``); print its URL; serve until Ctrl-C.
 
     ``results``: the Dataset tab's results folder; None = the sample store in the user cache (built
     in the background on first run). ``allow_hosts``: more names the server answers to (see
-    :mod:`.guard`). With ``block=False`` returns the running :class:`ViewerApp` instead.
+    :mod:`.guard`). ``data_dir``: a folder whose capture files browsers may load (None: uploads only).
+    With ``block=False`` returns the running :class:`ViewerApp` instead.
     """
     app = ViewerApp(
         host,
@@ -711,6 +681,7 @@ def serve(
         announce=lambda url: print(f"shapeviewer: serving on {url} (building the scene...)", flush=True),
         results=DEFAULT if results is None else results,
         allow_hosts=allow_hosts,
+        data_dir=data_dir,
     )
     print(f"shapeviewer: ready on {app.url}  (Ctrl-C to stop)", flush=True)
     if not block:

@@ -16,6 +16,10 @@ from .state import MESH_KINDS, MESH_TITLES
 from .visuals import GUESS_SPREAD
 
 NO_SEGMENT = "(none)"
+NO_DATA_FILE = "(no capture files)"
+# The upload button's file filter (browsers match either the suffix or the MIME type).
+UPLOAD_MIME_TYPES = ".pcd,.ply,.png,.npy"
+MAX_UPLOAD_MB = 200
 # Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
 ALGORITHM_1_STEPS = (
     ("density", "density ratio"),
@@ -75,8 +79,10 @@ class Panel:
     source: viser.GuiMarkdownHandle
     seed: viser.GuiNumberHandle
     new_scene: viser.GuiButtonHandle
-    cloud_path: viser.GuiTextHandle
-    load_cloud: viser.GuiButtonHandle
+    upload: viser.GuiUploadButtonHandle
+    # Only with a data folder (``--data-dir``): its capture files, and the button that loads one.
+    cloud_path: viser.GuiDropdownHandle | None
+    load_cloud: viser.GuiButtonHandle | None
     model: viser.GuiMarkdownHandle
     model_folder: viser.GuiFolderHandle
     segment: viser.GuiDropdownHandle
@@ -100,9 +106,8 @@ class Panel:
     @property
     def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
         """Buttons that start a job; disabled while one runs (double clicks would queue jobs)."""
-        return (
+        buttons = (
             self.new_scene,
-            self.load_cloud,
             self.complete,
             self.complete_all,
             self.detailed,
@@ -110,10 +115,15 @@ class Panel:
             self.mirror,
             self.hull,
         )
+        return buttons if self.load_cloud is None else (*buttons, self.load_cloud)
 
 
-def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
-    """Add the panel's controls to ``gui`` (all empty until a scene is loaded)."""
+def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None = None) -> Panel:
+    """Add the panel's controls to ``gui`` (all empty until a scene is loaded).
+
+    ``data_files``: the capture files of the server's data folder (see :func:`data_file_options`) for
+    the "Server file" dropdown; None (no data folder) leaves the dropdown and its button out.
+    """
     gui.add_markdown("**Shape completion** — Varley et al., IROS 2017. Click a segment in the 3D view to complete it.")
     status = gui.add_markdown("_Loading the scene..._")
     with gui.add_folder("Source"):
@@ -159,8 +169,19 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
     with gui.add_folder("Load a scene"):
         seed_h = gui.add_number("Seed", seed, min=0, step=1, hint="Seed of the generated tabletop scene")
         new_scene = gui.add_button("New scene", icon=viser.Icon.DICE, hint="Generate the tabletop scene of this seed")
-        cloud_path = gui.add_text("Cloud path", "", hint=".pcd/.ply point cloud, or a depth image (.png mm, .npy m)")
-        load_cloud = gui.add_button("Load capture", icon=viser.Icon.FOLDER_OPEN)
+        upload = gui.add_upload_button(
+            "Upload capture",
+            icon=viser.Icon.UPLOAD,
+            mime_type=UPLOAD_MIME_TYPES,
+            hint=f".pcd/.ply point cloud, or a depth image (.png mm, .npy m); at most {MAX_UPLOAD_MB} MB",
+        )
+        cloud_path: viser.GuiDropdownHandle | None = None
+        load_cloud: viser.GuiButtonHandle | None = None
+        if data_files is not None:
+            cloud_path = gui.add_dropdown(
+                "Server file", data_file_options(data_files), hint="A capture file in the server's data folder"
+            )
+            load_cloud = gui.add_button("Load server file", icon=viser.Icon.FOLDER_OPEN)
     with gui.add_folder("Export", expand_by_default=False):
         export_frame = gui.add_dropdown("Frame", ("world", "camera"), hint="Coordinates of exported points and meshes")
         mesh_format = gui.add_dropdown("Mesh format", MESH_FORMATS)
@@ -177,6 +198,7 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
         source,
         seed_h,
         new_scene,
+        upload,
         cloud_path,
         load_cloud,
         model,
@@ -199,6 +221,11 @@ def build_panel(gui: viser.GuiApi, seed: int) -> Panel:
         export_grids,
         export_mesh,
     )
+
+
+def data_file_options(files: tuple[str, ...]) -> tuple[str, ...]:
+    """The "Server file" dropdown's entries (a placeholder when the data folder has no capture file)."""
+    return files if files else (NO_DATA_FILE,)
 
 
 def source_markdown(
