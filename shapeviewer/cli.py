@@ -211,10 +211,11 @@ def cmd_complete(args) -> int:
 
 def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.ndarray) -> dict:
     """Write the fast mesh of each of a completion's samples (``<stem>_sample_<k>.<fmt>``); returns
-    the report entry: the files (None for an empty sample), the samples' mean spread (std of the
-    probabilities) on the voxels any of them fills, and the share of those voxels with a spread
-    above 0.1 (guessed rather than seen)."""
+    the report entry: the files (None for an empty sample) and the viewer's confidence figures
+    (:func:`~shapeviewer.pipeline.confidence_figures`): the mean spread on the seen and the unseen
+    side, and the share of completed voxels that are a guess."""
     from . import export
+    from .pipeline import confidence_figures
     from .reconstruct import fast_mesh
 
     assert c.samples is not None
@@ -228,14 +229,8 @@ def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.nd
         path = stem.with_name(f"{stem.name}_sample_{k}.{fmt}")
         path.write_bytes(export.mesh_bytes(mesh, fmt, frame, T_world_cam))
         files.append(path.name)
-    filled = (c.samples > 0.5).any(axis=0)
-    spread = c.samples.std(axis=0)
-    return {
-        "n": len(c.samples),
-        "meshes": files,
-        "mean_spread_filled": float(spread[filled].mean()) if filled.any() else 0.0,
-        "uncertain_share": float((spread[filled] > 0.1).mean()) if filled.any() else 0.0,
-    }
+    sides, guessed = confidence_figures(c.grid_in, c.grid_out, c.spread)
+    return {"n": len(c.samples), "meshes": files, "mean_spread": dict(sides), "guessed_share": guessed}
 
 
 def cmd_grasp(args) -> int:

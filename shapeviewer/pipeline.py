@@ -69,6 +69,36 @@ class Completion:
         """(40, 40, 40) bool: voxels with occupancy probability above 0.5."""
         return self.probabilities > 0.5
 
+    @property
+    def spread(self) -> np.ndarray | None:
+        """(40, 40, 40) float32 per-voxel std of the ``samples``' probabilities (the uncertainty),
+        None before samples are computed."""
+        return None if self.samples is None else self.samples.std(axis=0)
+
+
+# A completed voxel whose samples' probabilities spread more than this is a guess, not seen.
+GUESS_SPREAD = 0.1
+
+
+def confidence_figures(
+    grid_in: np.ndarray, grid_out: np.ndarray, spread: np.ndarray
+) -> tuple[list[tuple[str, float]], float]:
+    """How sure a completion is: ``([(side, mean spread)], share of guessed voxels)``.
+
+    A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an
+    occupied input voxel, else ``unseen`` (sides without voxels are left out); ``spread`` is the
+    per-voxel std of sample completions' probabilities, ``grid_in`` / ``grid_out`` boolean grids
+    of the same shape. A guessed voxel is a completed one with a spread above :data:`GUESS_SPREAD`.
+    """
+    from scipy import ndimage
+
+    occupied = np.asarray(grid_out, dtype=bool)
+    seen = ndimage.binary_dilation(grid_in) & occupied
+    unseen = occupied & ~seen
+    figures = [(what, float(spread[m].mean())) for what, m in (("seen", seen), ("unseen", unseen)) if m.any()]
+    guessed = float((spread[occupied] > GUESS_SPREAD).mean()) if occupied.any() else 0.0
+    return figures, guessed
+
 
 def check_segment(points_cam: np.ndarray) -> np.ndarray:
     """Finite (N, 3) points of a segment, or :class:`SegmentTooSmallError` saying what is wrong."""

@@ -84,7 +84,7 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
         assert samples.shape == (4, 40, 40, 40)
         np.testing.assert_allclose(samples[0], z["probabilities"], atol=1e-3)  # float16 storage
         np.testing.assert_allclose(z["spread"], samples.std(axis=0), atol=2e-3)
-        assert 0 < e["samples"]["mean_spread_filled"] < 0.5 and e["samples"]["n"] == 4
+        assert 0 < e["samples"]["mean_spread"]["unseen"] < 0.5 and e["samples"]["n"] == 4
         fast = trimesh.load(out / e["mesh"]["fast"])
         first = trimesh.load(out / e["samples"]["meshes"][0])
         np.testing.assert_allclose(first.vertices, fast.vertices)

@@ -35,7 +35,7 @@ from PIL import Image
 from ..camera import Intrinsics
 from ..capture import Capture, CaptureError, load_capture
 from ..model import load_completer, training_curves
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points
+from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
 from . import panel as P
 from . import sources
 from .dataset import DEFAULT, DatasetHooks, DatasetTab
@@ -47,7 +47,6 @@ from .gui import set_value
 from .jobs import READY, JobSlot, notify_clients
 from .rays import first_hit
 from .state import MESH_TITLES, LoadedScene, load_scene, make_mesh
-from .visuals import confidence_figures
 from .wiring import wire_callbacks
 
 if TYPE_CHECKING:
@@ -521,8 +520,8 @@ class ViewerApp:
         completions it needs (about 8 CNN passes) are made on first use."""
         if c.samples is None:
             c.samples = self.completer.predict_samples(c.grid_in, 8, context=c.context)
-        spread = c.samples.std(axis=0)
-        assert self.scene is not None  # ``c`` is a completion of it
+        spread = c.spread
+        assert spread is not None and self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
             c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)

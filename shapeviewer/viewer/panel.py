@@ -11,9 +11,8 @@ from dataclasses import dataclass
 import viser
 
 from ..export import MESH_FORMATS
-from ..pipeline import Completion
+from ..pipeline import GUESS_SPREAD, Completion
 from .state import MESH_KINDS, MESH_TITLES
-from .visuals import GUESS_SPREAD
 
 NO_SEGMENT = "(none)"
 NO_DATA_FILE = "(no capture files)"
@@ -305,7 +304,7 @@ def mesh_timings_markdown(kind: str, c: Completion, send: float) -> str:
 
 def confidence_markdown(segment_id: int, spread_by_side: list[tuple[str, float]], guessed: float) -> str:
     """The confidence of a completion: mean sample spread on each side (seen, unseen) and the share
-    of completed voxels that are a guess (see :func:`~.visuals.confidence_figures`)."""
+    of completed voxels that are a guess (see :func:`~shapeviewer.pipeline.confidence_figures`)."""
     return (
         f"Segment **{segment_id}**: confidence of the completion  \n"
         + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)

@@ -35,7 +35,6 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
 
 
 SPREAD_FULL_SCALE = 0.25  # sample spread (std of probabilities) drawn at full colour
-GUESS_SPREAD = 0.1  # a completed voxel whose samples spread more than this is a guess, not seen
 
 
 def spread_colors(spread: np.ndarray) -> np.ndarray:
@@ -45,26 +44,6 @@ def spread_colors(spread: np.ndarray) -> np.ndarray:
 
     x = np.clip(np.asarray(spread, dtype=np.float64) / SPREAD_FULL_SCALE, 0.0, 1.0)
     return (colormaps["magma_r"](0.02 + 0.9 * x)[:, :3] * 255).astype(np.uint8)
-
-
-def confidence_figures(
-    grid_in: np.ndarray, grid_out: np.ndarray, spread: np.ndarray
-) -> tuple[list[tuple[str, float]], float]:
-    """How sure a completion is: ``([(side, mean spread)], share of guessed voxels)``.
-
-    A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an
-    occupied input voxel, else ``unseen`` (sides without voxels are left out); ``spread`` is the
-    per-voxel std of sample completions' probabilities, ``grid_in`` / ``grid_out`` boolean grids
-    of the same shape.
-    """
-    from scipy import ndimage
-
-    occupied = np.asarray(grid_out, dtype=bool)
-    seen = ndimage.binary_dilation(grid_in) & occupied
-    unseen = occupied & ~seen
-    figures = [(what, float(spread[m].mean())) for what, m in (("seen", seen), ("unseen", unseen)) if m.any()]
-    guessed = float((spread[occupied] > GUESS_SPREAD).mean()) if occupied.any() else 0.0
-    return figures, guessed
 
 
 def shade(color: np.ndarray, factor: float) -> tuple[int, int, int]:
