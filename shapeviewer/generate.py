@@ -291,14 +291,18 @@ def generate(
     }
 
 
+def shard_files(out_dir: str | Path) -> list[Path]:
+    """The finished shards of a ``generate`` folder, sorted (a folder still being filled gives the
+    shards written so far; an older version's interrupted ``*.tmp.npz`` partials are skipped)."""
+    return sorted(p for p in (Path(out_dir) / "shards").glob("*.npz") if not p.name.endswith(".tmp.npz"))
+
+
 def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
     """Index every shard in ``out_dir``: object, split, view count and per-split example counts."""
     out_dir = Path(out_dir)
     shards = []
     examples = {"training_view": 0, "holdout_view": 0, "holdout_model": 0}
-    for p in sorted((out_dir / "shards").glob("*.npz")):
-        if p.name.endswith(".tmp.npz"):
-            continue
+    for p in shard_files(out_dir):
         name = p.stem.replace("__", "/")
         with np.load(p) as z:
             views = z["views"].tolist()

@@ -25,6 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from .fileio import atomic_write
+from .generate import shard_files
 from .model import build, default_device, network_input, save_weights
 from .sim import catalogue
 from .voxel import GRID_DIM
@@ -119,7 +120,7 @@ def _shard_files(data_dirs: str | Path | list) -> list[tuple[Path, Path]]:
     dirs = [Path(d) for d in (data_dirs if isinstance(data_dirs, (list, tuple)) else [data_dirs])]
     out = []
     for d in dirs:
-        shards = sorted(p for p in (d / "shards").glob("*.npz") if not p.name.endswith(".tmp.npz"))
+        shards = shard_files(d)
         if not shards:
             raise FileNotFoundError(f"no shards in {d}: run `shapeviewer generate --out {d}` first")
         out += [(d, p) for p in shards]
