@@ -1,7 +1,9 @@
-"""Helpers shared by the test modules: a free port, polling, scene nodes and a headless browser.
+"""Helpers shared by the test modules: a free port, polling, scene nodes, a headless browser and
+clicks on its 3D canvas.
 
 Test modules import them as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path``, as it
-does for ``store_factory``). Nothing here imports shapeviewer's heavy modules.
+does for ``store_factory``). Nothing here imports shapeviewer's heavy modules (the canvas helpers
+import viser and :mod:`shapeviewer.viewer.rays` when called).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 try:
@@ -56,9 +59,32 @@ def wait_until(predicate: Callable[[], Any], timeout: float, what: str, step: fl
     raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
 
 
-def node(app, name: str):
-    """The viewer's scene node called ``name`` (e.g. ``/fast_mesh/seg_0``), or None."""
-    return app.server.scene.get_handle_by_name(name)
+def node(session, name: str):
+    """The scene node called ``name`` (e.g. ``/fast_mesh/seg_0``) of a viewer session, or None."""
+    return session.audience.scene.get_handle_by_name(name)
+
+
+@contextlib.contextmanager
+def headless_session(**options) -> Iterator:
+    """A viewer (``ViewerApp(**options)`` on a free port, no session per browser) and one session
+    without a browser, drawn server-wide; the viewer stops afterwards."""
+    from shapeviewer.viewer import ViewerApp
+
+    viewer = ViewerApp(port=free_port(), sessions=False, **options)
+    try:
+        yield viewer.open_session()
+    finally:
+        viewer.stop()
+
+
+def browser_session(viewer, timeout: float = 60.0):
+    """The session of the (first) browser connected to ``viewer``, once it has its scene."""
+
+    def ready():
+        sessions = list(viewer.sessions.values())
+        return sessions[0] if sessions and sessions[0].scene is not None else None
+
+    return wait_until(ready, timeout, "the browser's session")
 
 
 @contextlib.contextmanager
@@ -75,3 +101,46 @@ def browser_page(app, **page_options) -> Iterator:
             yield page
         finally:
             browser.close()
+
+
+def reported_camera(client):
+    """The client's camera once it has reported one (viser asserts before the first report)."""
+    try:
+        cam = client.camera
+        cam.position  # noqa: B018 - raises AssertionError until the browser has sent its camera
+        return cam
+    except AssertionError:
+        return None
+
+
+def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] | None:
+    """Page pixel (x, y) where the browser draws ``point_world``, or None when the control panel
+    (or anything else) covers it there."""
+    import viser
+
+    from shapeviewer.viewer.rays import project_to_pixels
+
+    cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+    canvas = page.locator("canvas").first
+    canvas.wait_for(state="visible", timeout=20_000)
+    box = canvas.bounding_box()
+    R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
+    u, v = project_to_pixels(
+        np.asarray(point_world)[None], cam.position, R, cam.fov, cam.image_width, cam.image_height
+    )[0]
+    x = box["x"] + u * box["width"] / cam.image_width
+    y = box["y"] + v * box["height"] / cam.image_height
+    return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
+
+
+def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = 45.0) -> None:
+    """Click at ``xy`` until ``done()``: the canvas may not handle pointer events before its
+    first frame."""
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        page.mouse.click(*xy)
+        try:
+            wait_until(done, 8, what)
+        except AssertionError:
+            pass
+    assert done(), f"clicking at ({xy[0]:.0f}, {xy[1]:.0f}) did not lead to {what}"

@@ -10,55 +10,21 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import pytest
 
-from helpers import browser_page, free_port, needs_browser, wait_until
+from helpers import (
+    browser_page,
+    browser_session,
+    canvas_point,
+    click_until,
+    free_port,
+    needs_browser,
+    node,
+    reported_camera,
+    wait_until,
+)
 
 pytestmark = pytest.mark.browser
-
-
-def reported_camera(client):
-    """The client's camera once it has reported one (viser asserts before the first report)."""
-    try:
-        cam = client.camera
-        cam.position  # noqa: B018 - raises AssertionError until the browser has sent its camera
-        return cam
-    except AssertionError:
-        return None
-
-
-def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] | None:
-    """Page pixel (x, y) where the browser draws ``point_world``, or None when the control panel
-    (or anything else) covers it there."""
-    import viser
-
-    from shapeviewer.viewer.rays import project_to_pixels
-
-    cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
-    canvas = page.locator("canvas").first
-    canvas.wait_for(state="visible", timeout=20_000)
-    box = canvas.bounding_box()
-    R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
-    u, v = project_to_pixels(
-        np.asarray(point_world)[None], cam.position, R, cam.fov, cam.image_width, cam.image_height
-    )[0]
-    x = box["x"] + u * box["width"] / cam.image_width
-    y = box["y"] + v * box["height"] / cam.image_height
-    return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
-
-
-def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = 45.0) -> None:
-    """Click at ``xy`` until ``done()``: the canvas may not handle pointer events before its
-    first frame."""
-    deadline = time.monotonic() + timeout
-    while not done() and time.monotonic() < deadline:
-        page.mouse.click(*xy)
-        try:
-            wait_until(done, 8, what)
-        except AssertionError:
-            pass
-    assert done(), f"clicking at ({xy[0]:.0f}, {xy[1]:.0f}) did not lead to {what}"
 
 
 @needs_browser
@@ -67,12 +33,11 @@ def test_click_segment_completes_it(tmp_path):
     from shapeviewer.viewer.rays import ray_through
 
     # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
-    app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
+    viewer = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
     try:
-        with browser_page(app) as page:
-            client = wait_until(
-                lambda: next(iter(app.server.get_clients().values()), None), 15, "the browser to connect"
-            )
+        with browser_page(viewer) as page:
+            app = browser_session(viewer)  # the browser tab's own session
+            client = app.audience.client
             cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
             # Click the largest segment that is in view, not hidden behind another one and
             # not under the control panel.
@@ -89,13 +54,13 @@ def test_click_segment_completes_it(tmp_path):
             # The app records the completion once all its nodes are added.
             click_until(page, xy, lambda: sid in app.completions, f"the completion of segment {sid}")
             for layer in ("fast_mesh", "cnn_input", "cnn_output"):
-                assert app.server.scene.get_handle_by_name(f"/{layer}/seg_{sid}") is not None
+                assert node(app, f"/{layer}/seg_{sid}") is not None
             assert app.selected == sid
             assert app.last_timings["click_to_mesh"] > 0
             time.sleep(2)  # let the browser draw the new nodes before the screenshot
-            page.screenshot(path=str(tmp_path / "completed.png"))
+            page.screenshot(path=str(tmp_path / "completed.png"), timeout=120_000)
     finally:
-        app.stop()
+        viewer.stop()
 
 
 @needs_browser
@@ -106,13 +71,13 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
     from shapeviewer.viewer.grasps import hand_skeleton
     from shapeviewer.viewer.rays import ray_through
 
-    app = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
+    viewer = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
     try:
-        sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
-        assert app.complete(sid) is not None and app.selected == sid
-        app.grasps.panel.count.value = 3  # a quick plan: the test is about the button, not the planner
-        with browser_page(app) as page:
-            wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
+        with browser_page(viewer) as page:
+            app = browser_session(viewer)  # the browser tab's own session
+            sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
+            assert app.complete(sid) is not None and app.selected == sid
+            app.grasps.panel.count.value = 3  # a quick plan: the test is about the button, not the planner
             button = page.get_by_role("button", name="Plan grasps")
             button.wait_for(state="visible", timeout=30_000)
             # A software-rendered WebGL canvas on a busy machine starves the animation frames that
@@ -128,13 +93,13 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             grasps = app.grasps.sets[sid].grasps
             assert grasps, "no grasp found"
             for k in range(len(grasps)):
-                assert app.server.scene.get_handle_by_name(f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
+                assert node(app, f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
             # The browser shows the best grasp's description.
             page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
-            page.screenshot(path=str(tmp_path / "grasps.png"))
+            page.screenshot(path=str(tmp_path / "grasps.png"), timeout=120_000)
 
             # Clicking another grasp's hand on the canvas selects it (and completes nothing).
-            client = next(iter(app.server.get_clients().values()))
+            client = app.audience.client
             cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
             hand = get_hand("barrett")
             target = None
@@ -160,4 +125,4 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             )
             assert set(app.completions) == completed
     finally:
-        app.stop()
+        viewer.stop()

@@ -12,7 +12,7 @@ import trimesh
 from shapeviewer.evaluation.records import view_stem
 from shapeviewer.evaluation.results import ResultsStore
 
-from helpers import browser_page, free_port, needs_browser, wait_until
+from helpers import browser_page, browser_session, free_port, needs_browser, wait_until
 from store_factory import VIEWS, make_store
 
 pytestmark = pytest.mark.browser
@@ -26,10 +26,10 @@ def test_index_to_view_to_mesh_download(tmp_path):
     make_store(root)
     name, view = VIEWS[0]
     # The pipeline tab shows one of the store's own captures: small, quick to draw.
-    app = ViewerApp(port=free_port(), cloud=ResultsStore(root).capture(name, view), results=root)
+    viewer = ViewerApp(port=free_port(), cloud=ResultsStore(root).capture(name, view), results=root)
     try:
-        with browser_page(app, viewport={"width": 1100, "height": 760}, accept_downloads=True) as page:
-            wait_until(lambda: app.server.get_clients(), 15, "the browser to connect")
+        with browser_page(viewer, viewport={"width": 1100, "height": 760}, accept_downloads=True) as page:
+            app = browser_session(viewer)  # the browser tab's own session
 
             page.get_by_role("tab", name="Dataset").click()
             # The index lists the store's objects; pick the mug in the Object dropdown.
@@ -60,6 +60,6 @@ def test_index_to_view_to_mesh_download(tmp_path):
             stored = trimesh.load(root / "meshes" / f"{stem}__truth.ply")
             assert len(got.faces) == len(stored.faces) and np.allclose(got.vertices, stored.vertices)
             time.sleep(1)
-            page.screenshot(path=str(tmp_path / "dataset.png"))
+            page.screenshot(path=str(tmp_path / "dataset.png"), timeout=120_000)
     finally:
-        app.stop()
+        viewer.stop()

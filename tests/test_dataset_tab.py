@@ -18,7 +18,7 @@ from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view
 
-from helpers import free_port, node
+from helpers import free_port, headless_session, node
 from store_factory import VIEWS, jaccard_of, make_store, write_view
 
 PIPELINE = ("/cloud", "/segments", "/fast_mesh")
@@ -35,9 +35,8 @@ def store_root(tmp_path_factory):
 def app(store_root):
     # The pipeline shows one of the store's own captures: quicker to build than the default scene.
     capture = ResultsStore(store_root).capture(*VIEWS[0])
-    app = ViewerApp(port=free_port(), cloud=capture, results=store_root)
-    yield app
-    app.stop()
+    with headless_session(cloud=capture, results=store_root) as app:
+        yield app
 
 
 def test_index_lists_the_store_objects(app):

@@ -21,7 +21,7 @@ from shapeviewer.camera import Intrinsics, backproject
 from shapeviewer.capture import MAX_CAPTURE_POINTS, CaptureError, decimate, fit_intrinsics, load_capture
 from shapeviewer.segment import segment_scene
 
-from helpers import free_port
+from helpers import free_port, headless_session
 
 CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
 MILK = CAPTURES / "milk_cartoon_all_small_clorox.pcd"
@@ -119,11 +119,8 @@ def test_segmentation_clusters_a_bounded_number_of_voxels(monkeypatch) -> None:
 
 @pytest.fixture(scope="module")
 def app():
-    from shapeviewer.viewer import ViewerApp
-
-    app = ViewerApp(port=free_port(), cloud=MUG, results=None)
-    yield app
-    app.stop()
+    with headless_session(cloud=MUG, results=None) as app:
+        yield app
 
 
 def test_a_load_without_a_usable_segment_keeps_the_scene(app, tmp_path: Path) -> None:
@@ -171,7 +168,8 @@ HUGE_LOAD = textwrap.dedent("""
         kb = next(line.split()[1] for line in open("/proc/self/status") if line.startswith("VmHWM"))
         return int(kb) * 1024 / 1e9
 
-    app = ViewerApp(port=int(sys.argv[3]), cloud=sys.argv[1], results=None)
+    viewer = ViewerApp(port=int(sys.argv[3]), cloud=sys.argv[1], results=None, sessions=False)
+    app = viewer.open_session()
     t0 = time.perf_counter()
     ok = app.load_cloud(sys.argv[2])
     seconds = time.perf_counter() - t0
@@ -179,7 +177,7 @@ HUGE_LOAD = textwrap.dedent("""
     print(json.dumps({"ok": ok, "seconds": seconds, "sent": sent, "segments": len(app.scene.segments),
                       "kept": len(app.scene.capture.flat_points()), "error": app.last_error,
                       "max_rss_gb": peak_rss_gb()}))
-    app.stop()
+    viewer.stop()
 """)
 
 

@@ -15,9 +15,10 @@ from PIL import Image
 
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer import panel as P
+from shapeviewer.viewer.session import Session
 from shapeviewer.viewer.sources import read_upload
 
-from helpers import browser_page, free_port, needs_browser, node, wait_until
+from helpers import browser_page, browser_session, free_port, headless_session, needs_browser, node, wait_until
 
 CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
 MILK = CAPTURES / "milk_cartoon_all_small_clorox.pcd"
@@ -40,16 +41,15 @@ def random_pcd(n: int, seed: int = 5) -> bytes:
     return header.encode() + points.astype("<f4").tobytes()
 
 
-def visible_labels(app: ViewerApp) -> set[str]:
+def visible_labels(app: Session) -> set[str]:
     """Labels of every GUI input the app created."""
-    return {h.label for h in app.server.gui._gui_input_handle_from_uuid.values() if hasattr(h, "label")}
+    return {h.label for h in app.audience.gui._gui_input_handle_from_uuid.values() if hasattr(h, "label")}
 
 
 @pytest.fixture(scope="module")
 def app():
-    app = ViewerApp(port=free_port(), cloud=MILK, results=None)
-    yield app
-    app.stop()
+    with headless_session(cloud=MILK, results=None) as app:
+        yield app
 
 
 @pytest.fixture
@@ -66,7 +66,7 @@ def temp_folders(monkeypatch) -> list[Path]:
     return made
 
 
-def upload_through_the_button(app: ViewerApp, name: str, content: bytes) -> None:
+def upload_through_the_button(app: Session, name: str, content: bytes) -> None:
     """What viser does when a browser's upload completes: set the button's value, call its callbacks."""
     handle = app.panel.upload
     handle._impl.value = viser.UploadedFile(name, content)
@@ -75,7 +75,7 @@ def upload_through_the_button(app: ViewerApp, name: str, content: bytes) -> None
 
 
 def test_without_data_dir_browsers_cannot_read_server_paths(app):
-    assert app.data_dir is None and app.panel.cloud_path is None and app.panel.load_cloud is None
+    assert app.res.data_dir is None and app.panel.cloud_path is None and app.panel.load_cloud is None
     labels = visible_labels(app)
     assert "Upload capture" in labels
     assert not labels & {"Cloud path", "Server file", "Load server file"}
@@ -126,11 +126,11 @@ def test_a_bad_upload_is_one_red_line_and_keeps_the_scene(app, temp_folders, cas
     for sid in before.segments:
         assert node(app, f"/segments/seg_{sid}") is not None
     assert not any(f.exists() for f in temp_folders)
-    assert not app.jobs.lock.locked()
+    assert not app.jobs.busy
 
 
 def test_an_upload_over_the_size_cap_is_refused_unread(app, temp_folders, monkeypatch):
-    monkeypatch.setattr(app, "max_upload_bytes", 1_000_000)
+    monkeypatch.setattr(app.res, "max_upload_bytes", 1_000_000)
     before = app.scene
     assert app.load_upload(MUG.name, MUG.read_bytes()) is False
     assert "at most 1 MB" in app.last_error and MUG.name in app.last_error
@@ -143,10 +143,10 @@ def test_a_depth_image_upload_says_which_intrinsics_it_assumed(app):
     depth = (800 + np.arange(48)[:, None] * 5 + np.zeros((1, 64))).astype(np.uint16)
     out = io.BytesIO()
     Image.fromarray(depth).save(out, format="PNG")
-    capture, note = read_upload("plane.png", out.getvalue(), app.intrinsics)
+    capture, note = read_upload("plane.png", out.getvalue(), app.res.intrinsics)
     assert capture.points_cam.shape == (48, 64, 3) and capture.source == "plane.png"
     assert note and "--fx --fy --cx --cy" in note and "Kinect" in note and "64x48" in note
-    _, note = read_upload("points.npy", npy_bytes(np.ones((10, 3))), app.intrinsics)
+    _, note = read_upload("points.npy", npy_bytes(np.ones((10, 3))), app.res.intrinsics)
     assert note is None  # points need no intrinsics
 
 
@@ -158,8 +158,7 @@ def test_with_data_dir_only_its_files_are_offered_and_loaded(tmp_path):
     outside = tmp_path / "outside.pcd"
     shutil.copy(MUG, outside)
     (data / "link.pcd").symlink_to(outside)  # a symbolic link out of the folder
-    app = ViewerApp(port=free_port(), cloud=MILK, results=None, data_dir=data)
-    try:
+    with headless_session(cloud=MILK, results=None, data_dir=data) as app:
         assert app.panel.cloud_path is not None and app.panel.load_cloud is not None
         assert {"Server file", "Load server file", "Upload capture"} <= visible_labels(app)
         assert tuple(app.panel.cloud_path.options) == ("milk.pcd",)  # not the link out of the folder
@@ -172,10 +171,9 @@ def test_with_data_dir_only_its_files_are_offered_and_loaded(tmp_path):
             assert app.scene is before
         assert app.load_data_file("milk.pcd") is True and app.scene is not before
         shutil.copy(MUG, data / "mug.pcd")
-        app.on_connect(None)  # a browser (re)connects: the list is scanned again
+        app.last_error = None
+        assert app.load_data_file("mug.pcd") is True, app.last_error  # the list is scanned at each load
         assert tuple(app.panel.cloud_path.options) == ("milk.pcd", "mug.pcd")
-    finally:
-        app.stop()
 
 
 def test_serve_has_a_data_dir_option():
@@ -195,15 +193,16 @@ def test_a_missing_data_dir_is_refused(tmp_path):
 @pytest.mark.browser
 def test_upload_through_the_browser():
     """Chromium picks the file in viser's (hidden) file input; the server shows the new scene."""
-    app = ViewerApp(port=free_port(), cloud=MILK, results=None, max_cloud_points=20_000)
+    viewer = ViewerApp(port=free_port(), cloud=MILK, results=None, max_cloud_points=20_000)
     try:
-        before = app.scene
-        with browser_page(app) as page:
+        with browser_page(viewer) as page:
+            app = browser_session(viewer)
+            before = app.scene
             file_input = page.locator("input[type=file]")
             file_input.first.wait_for(state="attached", timeout=30_000)
             assert file_input.count() == 1
             file_input.first.set_input_files(str(MUG))
             wait_until(lambda: app.scene is not before, 60, "the uploaded scene")
-        assert app.scene.capture.source == MUG.name and app.scene.segments
+            assert app.scene.capture.source == MUG.name and app.scene.segments
     finally:
-        app.stop()
+        viewer.stop()

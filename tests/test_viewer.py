@@ -3,27 +3,27 @@
 from __future__ import annotations
 
 import io
+import time
 
 import numpy as np
 import pytest
 import trimesh
 
 from shapeviewer.camera import transform_points
-from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.rays import first_hit, project_to_pixels, ray_through
+from shapeviewer.viewer.session import Session
 from shapeviewer.viewer.visuals import surface_voxels
 
-from helpers import free_port, node
+from helpers import headless_session, node
 
 
 @pytest.fixture(scope="module")
 def app():
-    app = ViewerApp(port=free_port(), seed=0)
-    yield app
-    app.stop()
+    with headless_session(seed=0) as app:
+        yield app
 
 
-def completed_segment(app: ViewerApp) -> int:
+def completed_segment(app: Session) -> int:
     """Id of a segment with a fast mesh (completing the largest segment if none is yet)."""
     for sid, c in app.completions.items():
         if c.fast_mesh is not None:
@@ -90,7 +90,7 @@ def test_complete_all_is_one_batch(app):
     # the Dataset tab may be building its sample store with the same network in the background.
     me = threading.get_ident()
     batches: list[int] = []
-    hook = app.completer.net.register_forward_hook(
+    hook = app.res.completer.net.register_forward_hook(
         lambda _net, args, _out: batches.append(len(args[0])) if threading.get_ident() == me else None
     )
     try:
@@ -105,13 +105,38 @@ def test_complete_all_is_one_batch(app):
     assert "All" in app.panel.timings.content
 
 
-def test_busy_guard_rejects_a_second_job(app):
-    assert app.jobs.lock.acquire(blocking=False)
-    try:
-        assert app.complete(next(iter(app.scene.segments))) is None
-    finally:
-        app.jobs.lock.release()
-    assert not app.panel.complete.disabled
+def test_a_full_job_queue_answers_at_once_and_the_queue_drains(app):
+    """While a job runs, two more may wait; the next is refused at once with a message."""
+    import threading
+
+    release, running = threading.Event(), threading.Event()
+
+    def long_job() -> None:
+        with app.jobs.take(None) as ok:
+            assert ok
+            running.set()
+            release.wait(30)
+
+    waiting = [threading.Thread(target=long_job)]
+    waiting[0].start()
+    assert running.wait(10)
+    sid = next(iter(app.scene.segments))
+    results: list = []
+    for _ in range(app.jobs.max_waiting):
+        t = threading.Thread(target=lambda: results.append(app.complete(sid)))
+        t.start()
+        waiting.append(t)
+    time.sleep(0.3)
+    app.last_error = None
+    t0 = time.perf_counter()
+    assert app.complete(sid) is None  # the queue is full: refused without waiting
+    assert time.perf_counter() - t0 < 5
+    assert app.panel.complete.disabled  # the running job holds the buttons
+    release.set()
+    for t in waiting:
+        t.join(60)
+    assert len(results) == app.jobs.max_waiting and all(c is not None for c in results)
+    assert not app.jobs.busy and not app.panel.complete.disabled
 
 
 def test_bad_cloud_keeps_the_scene(app, tmp_path):
@@ -202,8 +227,7 @@ def test_tiny_segment_gives_a_clear_error(app):
 
 
 def test_real_capture_is_drawn_on_its_table_plane(real_data):
-    app = ViewerApp(port=free_port(), cloud=real_data / "milk_cartoon_all_small_clorox.pcd")
-    try:
+    with headless_session(cloud=real_data / "milk_cartoon_all_small_clorox.pcd") as app:
         scene = app.scene
         assert scene.title == "milk_cartoon_all_small_clorox.pcd"
         assert np.allclose(scene.T_world_cam, scene.segmentation.T_world_cam)
@@ -216,18 +240,13 @@ def test_real_capture_is_drawn_on_its_table_plane(real_data):
         sid = max(scene.segments, key=lambda s: len(scene.points_world[s]))
         assert app.complete(sid) is not None
         assert node(app, f"/fast_mesh/seg_{sid}") is not None
-    finally:
-        app.stop()
 
 
 def test_unorganized_cloud_without_colours_uses_depth_colours(real_data):
-    app = ViewerApp(port=free_port(), cloud=real_data / "milk.pcd")
-    try:
+    with headless_session(cloud=real_data / "milk.pcd") as app:
         assert app.scene.capture.colors is None
         assert app.panel.cloud_colors.value == "depth"
         assert len(node(app, "/cloud/points").points) == int(app.scene.capture.valid_mask().sum())
-    finally:
-        app.stop()
 
 
 def test_model_panel_says_whether_weights_are_trained(app):
@@ -237,7 +256,7 @@ def test_model_panel_says_whether_weights_are_trained(app):
     assert warning in model_markdown("unet3d", "untrained", False, {})
     shown = model_markdown("unet3d", "unet3d.pt", True, {"steps": 1000, "eval": {"holdout_view": {"jaccard": 0.74}}})
     assert warning not in shown and "1,000 training steps" in shown and "holdout view 0.74" in shown
-    assert (warning in app.panel.model.content) == (not app.completer.trained)
+    assert (warning in app.panel.model.content) == (not app.res.completer.trained)
 
 
 def test_detailed_mesh_is_drawn_stored_timed_and_exported(app):

@@ -12,22 +12,21 @@ import pytest
 
 from shapeviewer.camera import transform_points
 from shapeviewer.grasp.serialize import grasps_from_json
-from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer import grasps as G
+from shapeviewer.viewer.session import Session
 
-from helpers import free_port, node
+from helpers import headless_session, node
 
 N_GRASPS = 4
 
 
 @pytest.fixture(scope="module")
 def app():
-    app = ViewerApp(port=free_port(), seed=0)
-    yield app
-    app.stop()
+    with headless_session(seed=0) as app:
+        yield app
 
 
-def largest_segments(app: ViewerApp) -> list[int]:
+def largest_segments(app: Session) -> list[int]:
     return sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s]))
 
 
@@ -250,7 +249,7 @@ def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(
             raise RuntimeError("connection closed")
 
     gone = Gone()
-    monkeypatch.setattr(app.server, "get_clients", lambda: {gone.client_id: gone})
+    monkeypatch.setattr(app.audience.server, "get_clients", lambda: {gone.client_id: gone})
 
     def broken(*args, **kwargs):
         raise RuntimeError("pybullet exploded")
@@ -266,8 +265,7 @@ def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(
 
 
 def test_real_capture_has_no_ground_truth(real_data):
-    app = ViewerApp(port=free_port(), cloud=real_data / "milk_cartoon_all_small_clorox.pcd")
-    try:
+    with headless_session(cloud=real_data / "milk_cartoon_all_small_clorox.pcd") as app:
         sid = largest_segments(app)[0]
         job = app.plan_grasps(sid, "barrett", "fast", 3, budget_seconds=4.0)
         assert job is not None and job.error is None and job.result is not None
@@ -281,5 +279,3 @@ def test_real_capture_has_no_ground_truth(real_data):
         assert app.execute_grasps(sid, [0] if s.grasps else None) is None
         assert "No ground truth" in app.last_error and "real capture" in app.last_error
         assert node(app, f"/grasps/seg_{sid}/truth") is None
-    finally:
-        app.stop()

@@ -1,67 +1,50 @@
 """The web viewer of the paper's runtime pipeline (Fig. 5, steps 1-5a), served with viser.
 
-Everything is drawn in the WORLD frame (metres, z up): a synthetic capture knows its camera pose
-(``Capture.T_world_cam``, table top at z = 0); for a real capture the segmentation estimates a
-table-aligned world frame (``Segmentation.T_world_cam``); see :func:`~shapeviewer.segment.world_frame`.
-Pipeline results come in the camera optical frame and are mapped with that ``T_world_cam``
-before they are sent.
-
-The app ties its parts together: the scene as plain values (:mod:`.state`), its scene nodes
-(:mod:`.drawing`: a layer frame per pipeline stage), the control panel (:mod:`.panel`), the job
-slot and notifications (:mod:`.jobs`), the downloads (:mod:`.exports`), the Dataset tab
-(:mod:`.dataset`, drawn under ``/dataset``; it hides the pipeline's nodes while it is shown) and
-the grasps (:mod:`.grasps`, step 6: hands under ``/grasps/seg_3/g0``, ...).
-
-:class:`ViewerApp` can be driven without a browser (tests call :meth:`ViewerApp.complete`,
-:meth:`ViewerApp.pick`, ...); GUI callbacks call the same methods. Plain ``def`` callbacks run in
-viser's thread pool, so one job slot serialises jobs (loading, completing, detailed and baseline
-meshes) and the job buttons are disabled while one runs. Grasp planning and execution run in their
-own background thread outside that slot (:class:`~.grasps.GraspController`, one grasp job at a time).
+:class:`ViewerApp` is the server: it loads what every browser shares once (the CNN, the default
+scenes, the sample results store, two bounded worker pools) and gives each browser tab its own
+:class:`~.session.Session` (its capture, selection, completions, grasps and Dataset tab, drawn with
+viser's per-client scene and GUI), closed with the tab. :meth:`ViewerApp.open_session` opens a
+session without a browser, drawn server-wide, for scripts and tests.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 import viser
 from PIL import Image
 
 from ..camera import Intrinsics
-from ..capture import Capture, CaptureError, load_capture
+from ..capture import Capture, load_capture
+from ..evaluation.run import sample_store_complete, sample_store_dir
 from ..model import load_completer, training_curves
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
 from . import panel as P
-from . import sources
-from .dataset import DEFAULT, DatasetHooks, DatasetTab
-from .drawing import PipelineDrawing
-from .exports import segment_export
-from .grasps import GraspController, GraspHost, GraspJob
+from .audience import Audience
+from .dataset import DEFAULT, SampleBuild
 from .guard import Guard, server_url, start_server
-from .gui import set_value
-from .jobs import READY, JobSlot, notify_clients
-from .rays import first_hit
-from .state import MESH_TITLES, LoadedScene, load_scene, make_mesh
-from .wiring import wire_callbacks
-
-if TYPE_CHECKING:
-    from viser._gui_api import LiteralColor
+from .jobs import WorkerPool
+from .session import Session, SessionResources
+from .state import LoadedScene, load_scene
 
 log = logging.getLogger(__name__)
 
+MAX_CACHED_SCENES = 4  # default scenes kept for new sessions and "New scene" (a few MB each)
+
 
 class ViewerApp:
-    """The viewer: a viser server, its panel, and the currently loaded scene.
+    """The viewer server and its sessions.
 
     Args:
         host, port: where to serve (viser takes the next free port if ``port`` is busy: see ``.port``).
         seed: seed of the generated default scene (used when ``cloud`` is None).
-        cloud: a capture file path (.pcd/.ply/.png/.npy), a :class:`Capture`, or None (default scene).
+        cloud: a capture file path (.pcd/.ply/.png/.npy), a :class:`Capture`, or None (default
+            scene): the scene every new session starts with.
         weights: CNN weights file; None = the shipped model (untrained fallback when absent).
         intrinsics: camera intrinsics for depth images.
         max_cloud_points: draw at most this many points of the Cloud layer (None = what is left of
@@ -74,6 +57,9 @@ class ViewerApp:
             None (none).
         data_dir: a folder of the server whose capture files browsers may load ("Server file"
             dropdown; nothing outside it). None (default): browsers can only upload their own files.
+        workers: jobs of all sessions that compute at once (default: the CPU count, at most 4).
+        sessions: True (default): each browser tab gets its own session. False: no session opens
+            by itself (a script or test opens one with :meth:`open_session`).
     """
 
     def __init__(
@@ -90,565 +76,191 @@ class ViewerApp:
         token: str | None = None,
         allow_hosts: tuple[str, ...] = (),
         data_dir: str | Path | None = None,
+        workers: int | None = None,
+        sessions: bool = True,
     ) -> None:
-        self.data_dir = None if data_dir is None else Path(data_dir).expanduser().resolve()
-        if self.data_dir is not None and not self.data_dir.is_dir():
+        data_path = None if data_dir is None else Path(data_dir).expanduser().resolve()
+        if data_path is not None and not data_path.is_dir():
             raise NotADirectoryError(f"--data-dir {data_dir}: not a folder")
-        self.max_upload_bytes = P.MAX_UPLOAD_MB * 1024 * 1024
+        results_path = self._results_path(results, weights)
+        self.seed = int(seed)
+        self.sessions: dict[int, Session] = {}  # viser client id -> the tab's session
+        self._headless: list[Session] = []
+        self._sessions_lock = threading.Lock()
+        self._opening: set[int] = set()  # client ids whose session is being built
+        self._scenes: dict[int, LoadedScene] = {}  # seed -> default scene, most recent last
+        self._scenes_lock = threading.Lock()
+        self._first: LoadedScene | None = None
+        self._first_lock = threading.Lock()
+        self._cloud = cloud
+        self._stopping = False
+        self.res: SessionResources | None = None  # set once the model and the first scene are loaded
+        self._waiting: dict[int, viser.NotificationHandle] = {}  # client id -> "loading" note, until res
         # Only this machine's browser (or, off localhost, holders of the token) may drive the app.
         self.guard = Guard.for_host(host, token, allow_hosts)
         self.server = start_server(host, port, self.guard)
         self.port = self.server.get_port()
         self.host = host
-        self.intrinsics = intrinsics
-        self.scene: LoadedScene | None = None
-        self.completions: dict[int, Completion] = {}
-        self.selected: int | None = None
-        self.last_timings: dict[str, float] = {}
-        self.last_error: str | None = None
-        self.loading_notes: dict[int, viser.NotificationHandle] = {}
-        self.segment_options: dict[str, int] = {}  # dropdown entry -> segment id
-        self.dataset: DatasetTab | None = None
-
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Docked, the panel takes its own column instead of floating over (and hiding) the scene.
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("+z")
-        tabs = self.server.gui.add_tab_group()
-        pipeline_tab = tabs.add_tab("Pipeline", viser.Icon.CUBE)
-        dataset_tab = tabs.add_tab("Dataset", viser.Icon.DATABASE)
-        with pipeline_tab:
-            self.panel = P.build_panel(self.server.gui, seed, None if self.data_dir is None else self.data_files())
-        self.drawing = PipelineDrawing(self.server, max_cloud_points)
-        self.jobs = JobSlot(self.panel.job_buttons, self.notify, self._clear_loading_notes)
-        host_api = GraspHost(
-            scene=lambda: self.scene,
-            selected_segment=lambda: self.selected,
-            mesh=self._existing_mesh,
-            make_mesh=self._make_mesh_for_grasps,
-            show_layer=self._show_layer,
-            set_status=self._set_status,
-            notify=self.notify,
-        )
-        with pipeline_tab:
-            # The Grasps folder goes right after Completion (viser orders folders by a global counter).
-            self.grasps = GraspController(self.server, host_api, order=self.panel.timings.order + 0.5)
-        wire_callbacks(self)
+        if sessions:
+            self.server.on_client_connect(self._connect)
+            self.server.on_client_disconnect(self._disconnect)
         if announce is not None:
             announce(self.url)
-
         try:
-            self.dataset = DatasetTab(
-                self.server,
-                dataset_tab,
-                pipeline_tab,
-                results,
-                DatasetHooks(self.set_pipeline_visible, self.load_capture, self.notify),
-                weights,
+            self.first_scene(intrinsics)  # a bad --cloud fails here, before any browser sees a panel
+            completer = load_completer(weights)
+            curves = training_curves(completer)
+            sample_build = None
+            if results == DEFAULT and results_path is not None and not sample_store_complete(results_path):
+                sample_build = SampleBuild(self.server, self._dataset_tabs)
+                # Sharing the app's CNN (inference only) also keeps two threads from loading models
+                # at once: TorchScript parses Python source, and CPython 3.11's ``ast.parse`` is not
+                # thread-safe.
+                sample_build.start(results_path, weights, completer)
+            workers = min(os.cpu_count() or 1, 4) if workers is None else workers
+            self.res = SessionResources(
+                completer=completer,
+                model_markdown=P.model_markdown(
+                    completer.arch, Path(completer.source).name, completer.trained, completer.meta
+                ),
+                curves_png=None if curves is None else np.asarray(Image.open(curves).convert("RGB")),
+                first_scene=lambda: self.first_scene(intrinsics),
+                default_scene=self.default_scene,
+                pool=WorkerPool(workers),
+                grasp_pool=WorkerPool(max(1, workers // 2)),
+                intrinsics=intrinsics,
+                data_dir=data_path,
+                max_cloud_points=max_cloud_points,
+                results=results_path,
+                sample_build=sample_build,
             )
-            with self.jobs.take(None) as ok:
-                assert ok  # nothing else can run yet
-                self.completer = load_completer(weights)
-                self.dataset.start_background(self.completer)
-                c = self.completer
-                self.panel.model.content = P.model_markdown(c.arch, Path(c.source).name, c.trained, c.meta)
-                curves = training_curves(c)
-                if curves is not None:  # the paper's Fig. 4 for these weights
-                    with self.panel.model_folder:
-                        self.server.gui.add_image(
-                            np.asarray(Image.open(curves).convert("RGB")), label="Jaccard during training", format="png"
-                        )
-                if isinstance(cloud, Capture):
-                    capture = cloud
-                elif cloud is not None:
-                    capture = self._read_capture(cloud)
-                else:
-                    capture = self._default_capture(seed)
-                self._set_scene(capture)
         except BaseException:  # a bad --cloud/--weights/--results: do not leave the server thread running
             self.server.stop()
             raise
+        if sessions:
+            for client in list(self.server.get_clients().values()):  # browsers that came while loading
+                self._connect(client)
 
     # ------------------------------------------------------------------------------------------
-    # Public API (the GUI callbacks call these too)
+    # Public API
 
     @property
     def url(self) -> str:
         """The URL to open (with ``?token=...`` when the server is reachable off this machine)."""
         return server_url(self.host, self.port, self.guard)
 
-    def stop(self) -> None:
-        self.grasps.shutdown()
-        if self.dataset is not None:
-            self.dataset.shutdown()
-        self.server.stop()
+    def open_session(self, client: viser.ClientHandle | None = None) -> Session:
+        """A session for ``client``'s tab, or (None) one without a browser, drawn server-wide so
+        that every browser sees it: for scripts and tests. Closed by :meth:`stop`."""
+        if self.res is None:
+            raise RuntimeError("the viewer is still loading")
+        session = Session(Audience(self.server, client), self.res, self.seed)
+        with self._sessions_lock:
+            if client is None:
+                self._headless.append(session)
+            else:
+                self.sessions[client.client_id] = session
+        return session
 
-    def load_default(self, seed: int, client: viser.ClientHandle | None = None) -> bool:
-        """Generate and show the tabletop scene of ``seed``. False (and a notification) on failure."""
-        return self._load(lambda: self._default_capture(seed), f"scene seed {seed}", client)
+    def session_of(self, client: viser.ClientHandle | int) -> Session | None:
+        """The session of a browser tab (by handle or client id), or None."""
+        return self.sessions.get(client if isinstance(client, int) else client.client_id)
 
-    def load_cloud(self, path: str | Path, client: viser.ClientHandle | None = None) -> bool:
-        """Load and show a capture file. On a bad file: False, an error notification, old scene kept."""
-        return self._load(lambda: self._read_capture(path), str(path), client)
+    def first_scene(self, intrinsics: Intrinsics | None = None) -> LoadedScene:
+        """The scene new sessions start with: ``cloud`` segmented once, or the default scene of ``seed``."""
+        with self._first_lock:
+            if self._first is None:
+                cloud = self._cloud
+                if cloud is None:
+                    self._first = self.default_scene(self.seed)
+                else:
+                    capture = (
+                        cloud
+                        if isinstance(cloud, Capture)
+                        else load_capture(Path(cloud).expanduser(), intrinsics=intrinsics)
+                    )
+                    self._first = load_scene(capture)
+            return self._first
 
-    def load_upload(self, name: str, content: bytes, client: viser.ClientHandle | None = None) -> bool:
-        """Load and show a capture a browser uploaded (``name``: the browser's file name, whose suffix
-        picks the reader; ``content``: the file). On a bad file: False, an error notification, old
-        scene kept. The bytes are read from a private temporary folder (:func:`.sources.read_upload`).
-        """
-        shown = sources.upload_name(name)
-        problem = sources.upload_problem(shown, len(content), self.max_upload_bytes)
-        if problem is not None:
-            self.notify(client, "Could not load the capture", f"{shown}: {problem}", "red")
-            return False
-        notes: list[str] = []
-
-        def read() -> Capture:
-            capture, note = sources.read_upload(shown, content, self.intrinsics)
-            notes.extend([note] if note else [])
-            return capture
-
-        ok = self._load(read, shown, client)
-        if ok and notes:
-            self.notify(client, "Assumed intrinsics", notes[0], "yellow", auto_close=15.0)
-        return ok
-
-    def data_files(self) -> tuple[str, ...]:
-        """Names of the capture files in the data folder (:func:`.sources.data_files`)."""
-        return sources.data_files(self.data_dir)
-
-    def load_data_file(self, name: str, client: viser.ClientHandle | None = None) -> bool:
-        """Load a capture file of the data folder (``name`` relative to it). Anything that resolves
-        outside the folder is refused; without a data folder every path is."""
-        if self.data_dir is None:
-            self.notify(
-                client, "Server files are off", "Start the server with --data-dir DIR to load its files.", "red"
-            )
-            return False
-        name = str(name).strip()
-        if not name or name == P.NO_DATA_FILE:
-            self.notify(client, "No file chosen", "The server's data folder has no .pcd/.ply/.png/.npy file.", "red")
-            return False
-        try:
-            path = sources.data_file(self.data_dir, name)
-        except CaptureError as e:
-            self.notify(client, "Could not load the capture", str(e), "red")
-            return False
-        return self.load_cloud(path, client)
-
-    def load_capture(self, capture: Capture, client: viser.ClientHandle | None = None) -> bool:
-        """Show an already loaded capture."""
-        return self._load(lambda: capture, capture.source, client)
-
-    def set_pipeline_visible(self, visible: bool) -> None:
-        """Show or hide every pipeline node (the Dataset tab draws in the same 3D scene); layers keep
-        their checkboxes' state."""
-        self.drawing.set_visible(visible, {key: box.value for key, box in self.panel.layers.items()})
-
-    def pick(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> int | None:
-        """The segment a world-frame ray hits first (None when it misses all segments)."""
-        return self.pick_hit(ray_origin, ray_direction)[0]
-
-    def pick_hit(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> tuple[int | None, float]:
-        """:meth:`pick` and how far along the ray (metres) it hits: ``(None, inf)`` on a miss."""
-        if self.scene is None:
-            return None, np.inf
-        return first_hit(ray_origin, ray_direction, self.scene.points_world)
-
-    def click(self, ray_origin: np.ndarray, ray_direction: np.ndarray, client: viser.ClientHandle | None = None) -> str:
-        """A click in the 3D view (world-frame ray): a grasp's hand in front of the segments
-        selects that grasp, a segment is completed. Returns what happened: ``"grasp"``,
-        ``"segment"`` or ``"nothing"``."""
-        k, t_hand = self.grasps.pick(ray_origin, ray_direction)
-        sid, t_segment = self.pick_hit(ray_origin, ray_direction)
-        if k is not None and t_hand <= t_segment:
-            self.grasps.select(k)
-            return "grasp"
-        if sid is None:
-            self.notify(
-                client, "No segment there", "Click on a coloured segment, or on a grasp's hand.", auto_close=3.0
-            )
-            return "nothing"
-        self.complete(sid, client)
-        return "segment"
-
-    def segment_centroid_world(self, segment_id: int) -> np.ndarray:
-        """Mean of a segment's points, world metres."""
-        assert self.scene is not None  # set in __init__ (which fails without a scene)
-        return self.scene.points_world[segment_id].mean(axis=0)
-
-    def complete(self, segment_id: int, client: viser.ClientHandle | None = None) -> Completion | None:
-        """Fast-complete one segment and draw its CNN input, CNN output and fast mesh.
-
-        Returns the completion, or None when the segment cannot be completed or another job is
-        running (the client is told why).
-        """
-        done = self._complete([segment_id], client)
-        return done[0] if done else None
-
-    def complete_all(self, client: viser.ClientHandle | None = None) -> list[Completion]:
-        """Fast-complete every usable segment with one batched CNN pass (the paper's crowded scenes)."""
-        return self._complete(None, client)
-
-    def compute_mesh(
-        self, kind: str, segment_id: int | None = None, client: viser.ClientHandle | None = None
-    ) -> trimesh.Trimesh | None:
-        """Compute, store on the completion and draw a segment's ``detailed``, ``partial``, ``mirror`` or ``hull`` mesh.
-
-        The segment (default: the selected one) is fast-completed first if it has no completion yet.
-        Returns the camera-frame mesh, or None when it cannot be made or another job is running
-        (the client is told why).
-        """
-        if kind not in MESH_TITLES:
-            raise ValueError(f"unknown mesh {kind!r}; choose one of {tuple(MESH_TITLES)}")
-        sid = self.selected if segment_id is None else segment_id
-        if sid is None:
-            self.notify(client, "No segment selected", "Click a segment or pick one above.", "yellow")
-            return None
-        with self.jobs.take(client) as ok:
-            if not ok or self.scene is None:
-                return None
-            if kind == "mirror" and self.scene.segmentation.plane_cam is None:
-                self.notify(
-                    client,
-                    "Mirror needs a support plane",
-                    "No table plane was found in this capture, and the Mirror baseline searches its "
-                    "symmetry plane perpendicular to the table.",
-                    "red",
-                )
-                return None
-            c = self.completions.get(sid)
-            if c is None:
-                done = self._complete_in_slot([sid], client)
-                if not done:
-                    return None
-                c = done[0]
-            self._select(sid)
-            return self._compute_mesh_in_slot(kind, c, client)
-
-    def plan_grasps(
-        self,
-        segment_id: int | None = None,
-        hand: str = "barrett",
-        method: str = "fast",
-        n_grasps: int = 20,
-        client: viser.ClientHandle | None = None,
-        wait: bool = True,
-        seed: int = 0,
-        budget_seconds: float | None = None,
-    ) -> GraspJob | None:
-        """Plan grasps on a segment's (default: the selected one's) ``method`` mesh in the background,
-        outside the job slot; see :meth:`GraspController.plan`. ``job.result``: the
-        :class:`~shapeviewer.viewer.grasps.SegmentGrasps` (None when cancelled)."""
-        return self.grasps.plan(
-            self.selected if segment_id is None else segment_id,
-            hand,
-            method,
-            n_grasps,
-            client,
-            wait,
-            seed,
-            budget_seconds,
-        )
-
-    def cancel_grasps(self) -> bool:
-        """Stop the running grasp job (False when none runs)."""
-        return self.grasps.cancel()
-
-    def execute_grasps(
-        self,
-        segment_id: int | None = None,
-        indices: list[int] | None = None,
-        client: viser.ClientHandle | None = None,
-        wait: bool = True,
-        lift: bool = True,
-    ) -> GraspJob | None:
-        """Execute a segment's grasps ``indices`` (None: all) on its true object (synthetic scenes);
-        ``job.result``: the :class:`~shapeviewer.grasp.execute.ExecutionResult` list."""
-        return self.grasps.execute(
-            self.grasps.current if segment_id is None else segment_id, indices, client, wait, lift
-        )
-
-    def export_grasps(self, segment_id: int | None = None, fmt: str = "json") -> tuple[str, bytes]:
-        """``(file name, content)`` of a segment's grasps: ``json`` or the pybullet scene ``zip``."""
-        return self.grasps.export(self.grasps.current if segment_id is None else segment_id, fmt)
-
-    def export_bytes(
-        self,
-        kind: str,
-        segment_id: int | None = None,
-        mesh_format: str = "ply",
-        frame: str = "world",
-        mesh: str = "fast",
-    ) -> tuple[str, bytes]:
-        """``(file name, content)`` of an export of a segment (default: the selected one); see
-        :func:`~.exports.segment_export`. Raises ValueError with a message for the user."""
-        return segment_export(
-            self.scene,
-            self.completions,
-            self.selected if segment_id is None else segment_id,
-            kind,
-            mesh_format,
-            frame,
-            mesh,
-        )
-
-    def notify(
-        self,
-        client: viser.ClientHandle | None,
-        title: str,
-        body: str,
-        color: LiteralColor | None = None,
-        auto_close: float | None = 8.0,
-    ) -> None:
-        """Tell one client (every client when None) something; red ones are remembered as ``last_error``."""
-        if color == "red":
-            self.last_error = f"{title}: {body}"
-        notify_clients(self.server, client, title, body, color, auto_close)
-
-    # ------------------------------------------------------------------------------------------
-    # Completing
-
-    def _complete(self, ids: list[int] | None, client: viser.ClientHandle | None) -> list[Completion]:
-        """Complete segments ``ids`` (None: all) in one batch, draw them, and fill the timings table."""
-        with self.jobs.take(client) as ok:
-            if not ok or self.scene is None:
-                return []
-            return self._complete_in_slot(ids, client)
-
-    def _complete_in_slot(self, ids: list[int] | None, client: viser.ClientHandle | None) -> list[Completion]:
-        """:meth:`_complete` for a caller that holds the job slot (and has a scene)."""
-        scene = self.scene
-        assert scene is not None  # the callers return early without one
-        single = ids is not None
-        if ids is not None:
-            missing = [i for i in ids if i not in scene.segments]
-            if missing:
-                self.notify(client, "No such segment", f"Segment {missing[0]} is not in this scene.", "red")
-                return []
-            self._select(ids[0])
-        usable, skipped = [], []
-        for sid in ids if ids is not None else list(scene.segments):
-            try:
-                usable.append((sid, check_segment(scene.segments[sid].points_cam)))
-            except SegmentTooSmallError as e:
-                skipped.append(f"segment {sid}: {e}")
-        if skipped:
-            self.notify(
-                client,
-                "Cannot complete" if single else "Some segments were skipped",
-                "; ".join(skipped),
-                "red" if single else "yellow",
-            )
-        if not usable:
-            return []
-        what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
-        self.panel.status.content = f"_Completing {what}..._"
-        try:
-            done = complete_points(
-                [p for _, p in usable],
-                self.completer,
-                [sid for sid, _ in usable],
-                support_plane=scene.segmentation.plane_cam,
-            )
-            t0 = time.perf_counter()
-            for c in done:
-                self._draw_completion(c)
-            self.server.flush()
-            send = time.perf_counter() - t0
-        except Exception as e:  # keep the app alive whatever the model or mesher does
-            log.exception("completing %s failed", what)
-            self.notify(client, "Completion failed", f"{what}: {e}", "red")
-            self.panel.status.content = READY
-            return []
-        self.completions.update({c.segment_id: c for c in done})
-        title = f"Segment **{done[0].segment_id}**" if single else f"All **{len(done)}** segments (totals)"
-        self.last_timings = P.completion_timings(done, scene.seg_seconds, send)
-        self.panel.timings.content = P.completion_timings_markdown(title, self.last_timings)
-        self.panel.status.content = f"Completed {what}. Click a segment to complete it."
-        empty = [f"segment {c.segment_id}: {c.error}" for c in done if c.fast_mesh is None]
-        if empty:
-            self.notify(client, "Empty completion", "; ".join(empty), "yellow")
-        return done
-
-    def _compute_mesh_in_slot(
-        self, kind: str, c: Completion, client: viser.ClientHandle | None
-    ) -> trimesh.Trimesh | None:
-        """Make, draw and store mesh ``kind`` of completion ``c`` (the caller holds the job slot)."""
-        scene = self.scene
-        assert scene is not None  # ``c`` is a completion of it
-        sid, title = c.segment_id, MESH_TITLES[kind]
-        what = f"the {title.lower()} of segment {sid}"
-        notes = self._show_loading(client, f"Computing {what}...")
-        self.panel.status.content = f"_Computing {what}..._"
-        steps: dict[str, float] = {}
-        try:
-            t0 = time.perf_counter()
-            mesh = make_mesh(kind, c, scene, steps)
-            seconds = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            self.drawing.draw_mesh(scene, kind, sid, mesh)
-            self.server.flush()
-            send = time.perf_counter() - t0
-        except Exception as e:  # an empty completion, a degenerate cloud, ...: keep the app alive
-            log.warning("computing %s failed: %s", what, e, exc_info=not isinstance(e, ValueError))
-            self.notify(client, f"{title} failed", f"Segment {sid}: {e}", "red")
-            return None
-        finally:
-            for note in notes:
-                note.remove()
-            self.panel.status.content = READY
-        setattr(c, f"{kind}_mesh", mesh)
-        c.timings[f"{kind}_mesh"] = seconds
-        if kind == "detailed":
-            c.timings["detailed_steps"] = steps
-        set_value(self.panel.layers[f"{kind}_mesh"], True)  # the user asked to see it
-        self.panel.timings.content = P.mesh_timings_markdown(kind, c, send)
-        self.notify(
-            client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.", "green"
-        )
-        return mesh
-
-    def _draw_completion(self, c: Completion) -> None:
-        assert self.scene is not None  # ``c`` is a completion of it
-        self.drawing.draw_completion(self.scene, c, self.panel.shade_output.value)
-        if self.panel.layers["confidence"].value:
-            self.show_confidence(c)
-
-    def show_confidence(self, c: Completion) -> None:
-        """The Confidence layer of ``c`` and its figures in the stage panel; the 8 sample
-        completions it needs (about 8 CNN passes) are made on first use."""
-        if c.samples is None:
-            c.samples = self.completer.predict_samples(c.grid_in, 8, context=c.context)
-        spread = c.spread
-        assert spread is not None and self.scene is not None  # ``c`` is a completion of it
-        self.drawing.draw_confidence(self.scene, c, spread)
-        self.panel.timings.content = P.confidence_markdown(
-            c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)
-        )
-
-    # ------------------------------------------------------------------------------------------
-    # Loading
-
-    def _default_capture(self, seed: int) -> Capture:
+    def default_scene(self, seed: int) -> LoadedScene:
+        """The generated tabletop scene of ``seed``, segmented; the last few are kept for every session."""
         from ..sim.demo_scene import default_scene  # pybullet and the object catalogue: only when needed
 
-        return default_scene(int(seed))
+        with self._scenes_lock:
+            scene = self._scenes.pop(seed, None)
+            if scene is None:
+                scene = load_scene(default_scene(int(seed)))
+            self._scenes[seed] = scene
+            while len(self._scenes) > MAX_CACHED_SCENES:
+                self._scenes.pop(next(iter(self._scenes)))
+            return scene
 
-    def _read_capture(self, path: str | Path) -> Capture:
-        if not str(path).strip():
-            raise ValueError("enter the path of a .pcd/.ply cloud or a depth image")
-        return load_capture(Path(str(path).strip()).expanduser(), intrinsics=self.intrinsics)
-
-    def _load(self, make: Callable[[], Capture], what: str, client: viser.ClientHandle | None) -> bool:
-        with self.jobs.take(client) as ok:
-            if not ok:
-                return False
-            notes = self._show_loading(client, f"Loading {what}...")
-            try:
-                decimated = self._set_scene(make(), require_segment=True)
-                if decimated is not None:
-                    self.notify(client, "Large capture", decimated, "yellow")
-                return True
-            except Exception as e:  # any bad input: tell the user, keep the current scene
-                log.warning("loading %s failed: %s", what, e, exc_info=not isinstance(e, (ValueError, OSError)))
-                self.notify(client, "Could not load the capture", str(e) if what in str(e) else f"{what}: {e}", "red")
-                return False
-            finally:
-                for note in notes:
-                    note.remove()
-
-    def _set_scene(self, capture: Capture, require_segment: bool = False) -> str | None:
-        """Segment ``capture`` and replace the shown scene with it (raises, leaving the old scene, on failure).
-
-        ``require_segment``: see :func:`~.state.load_scene`. Returns a note for the user when the
-        capture was decimated (see :func:`~shapeviewer.capture.decimate`), else None.
-        """
-        scene = load_scene(capture, require_segment)
-        capture = scene.capture
-        if self.dataset is not None:
-            self.dataset.leave()  # a new scene is what the user wants to see
-        self.grasps.clear()
-        self.scene, self.completions, self.selected, self.last_timings = scene, {}, None, {}
-        self.drawing.show_scene(scene, self.panel.cloud_colors.value == "capture")
-        self.server.flush()
-
-        n_valid = int(capture.valid_mask().sum())
-        self.panel.source.content = P.source_markdown(
-            scene.title,
-            len(capture.flat_points()),
-            n_valid,
-            len(scene.segments),
-            scene.seg_seconds,
-            f"world: {scene.frame_note}",
-        )
-        decimated = capture.decimation_note()
-        sent = self.drawing.sent_points()
-        if decimated is not None or sent < n_valid:
-            decimated = "; ".join(filter(None, [decimated, f"showing {sent:,} points"]))
-            self.panel.source.content += f"  \n_{decimated}_"
-        self.segment_options = scene.segment_options
-        self.panel.segment.options = (P.NO_SEGMENT, *self.segment_options)
-        set_value(self.panel.segment, P.NO_SEGMENT)
-        if capture.colors is None:
-            set_value(self.panel.cloud_colors, "depth")
-        self.panel.timings.content = P.timings_markdown("No completion yet.", [("segmentation", scene.seg_seconds)])
-        self.panel.status.content = (
-            "Ready. **Click a segment** in the 3D view to complete it."
-            if scene.segments
-            else "**No segments found** in this capture."
-        )
-        return decimated if capture.original_points is not None else None
+    def stop(self) -> None:
+        """Close every session, then the server."""
+        self._stopping = True
+        with self._sessions_lock:
+            sessions = [*self.sessions.values(), *self._headless]
+            self.sessions.clear()
+            self._headless.clear()
+        for s in sessions:
+            s.close()
+        if self.res is not None and self.res.sample_build is not None:
+            self.res.sample_build.stop()
+        self.server.stop()
 
     # ------------------------------------------------------------------------------------------
-    # Panel and the grasp controller's host
+    # Browser tabs
 
-    def _select(self, segment_id: int | None) -> None:
-        self.selected = segment_id
-        if segment_id is None:
-            set_value(self.panel.segment, P.NO_SEGMENT)
-            return
-        set_value(self.panel.segment, next(o for o, sid in self.segment_options.items() if sid == segment_id))
-
-    def _set_status(self, text: str) -> None:
-        self.panel.status.content = text
-
-    def _show_layer(self, key: str, visible: bool) -> None:
-        set_value(self.panel.layers[key], visible)
-
-    def _existing_mesh(self, kind: str, segment_id: int) -> trimesh.Trimesh | None:
-        c = self.completions.get(segment_id)
-        return None if c is None else getattr(c, f"{kind}_mesh")
-
-    def _make_mesh_for_grasps(
-        self, kind: str, segment_id: int, client: viser.ClientHandle | None
-    ) -> trimesh.Trimesh | None:
-        if kind == "fast":
-            c = self.complete(segment_id, client)
-            return None if c is None else c.fast_mesh
-        return self.compute_mesh(kind, segment_id, client)
-
-    # ------------------------------------------------------------------------------------------
-    # Notifications
-
-    def on_connect(self, client: viser.ClientHandle) -> None:
-        if self.panel.cloud_path is not None:  # files may have come or gone since the last visit
-            options = P.data_file_options(self.data_files())
-            if tuple(self.panel.cloud_path.options) != options:
-                self.panel.cloud_path.options = options
-        if self.scene is None:  # still building the first scene
-            self.loading_notes[client.client_id] = client.add_notification(
-                "Loading the scene", "Generating and segmenting the capture...", loading=True, with_close_button=False
-            )
-
-    def _clear_loading_notes(self) -> None:
-        for note in self.loading_notes.values():
+    def _connect(self, client: viser.ClientHandle) -> None:
+        cid = client.client_id
+        with self._sessions_lock:  # viser's hook and __init__'s catch-up may both call this
+            if self._stopping or cid in self.sessions or cid in self._opening:
+                return
+            if self.res is None:  # still loading the model and the first scene: opened once they are
+                if cid not in self._waiting:
+                    self._waiting[cid] = client.add_notification(
+                        "Loading the scene", "Loading the model and the scene...", loading=True, with_close_button=False
+                    )
+                return
+            self._opening.add(cid)
+            note = self._waiting.pop(cid, None)
+        if note is not None:
             note.remove()
-        self.loading_notes.clear()
+        try:
+            self.open_session(client)
+        except Exception:  # a tab that closed while its session was being built
+            log.warning("opening a session for client %s failed", cid, exc_info=True)
+        finally:
+            self._opening.discard(cid)
+        if cid not in self.server.get_clients():  # it closed meanwhile: free it now
+            self._disconnect(client)
 
-    def _show_loading(self, client: viser.ClientHandle | None, body: str) -> list[viser.NotificationHandle]:
-        clients = [client] if client is not None else list(self.server.get_clients().values())
-        return [c.add_notification("Loading", body, loading=True, with_close_button=False) for c in clients]
+    def _disconnect(self, client: viser.ClientHandle) -> None:
+        self._waiting.pop(client.client_id, None)
+        with self._sessions_lock:
+            session = self.sessions.pop(client.client_id, None)
+        if session is not None:
+            session.close()
+
+    def _dataset_tabs(self) -> list:
+        with self._sessions_lock:
+            sessions = [*self.sessions.values(), *self._headless]
+        return [s.dataset for s in sessions if s.dataset is not None]
+
+    @staticmethod
+    def _results_path(results: str | Path | None, weights: str | Path | None) -> Path | None:
+        if results is None:
+            return None
+        if results == DEFAULT:
+            return sample_store_dir(weights)
+        root = Path(results).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"results folder not found: {root}")
+        return root
 
 
 def serve(

@@ -17,6 +17,7 @@ import viser
 
 from ..camera import Intrinsics, transform_points
 from ..pipeline import Completion
+from .audience import Audience
 from .panel import LAYERS, MESH_KINDS
 from .state import LoadedScene
 from .visuals import default_view, depth_colors, probability_colors, shade, spread_colors, surface_voxels, voxel_cubes
@@ -40,17 +41,17 @@ class PipelineDrawing:
     """Adds, replaces and removes the pipeline's scene nodes (remembered so a new scene can clear them).
 
     Args:
-        server: the viser server.
+        audience: the browser tab (or every browser) to draw for.
         max_cloud_points: draw at most this many points of the Cloud layer (None = what is left of
             :data:`MAX_SENT_POINTS` after the segments).
     """
 
-    def __init__(self, server: viser.ViserServer, max_cloud_points: int | None = None) -> None:
-        self.server = server
+    def __init__(self, audience: Audience, max_cloud_points: int | None = None) -> None:
+        self.audience = audience
         self.max_cloud_points = max_cloud_points
         self.nodes: dict[str, viser.SceneNodeHandle] = {}
         self.layer_roots = {
-            layer.key: server.scene.add_frame(f"/{layer.key}", show_axes=False, visible=layer.visible)
+            layer.key: audience.scene.add_frame(f"/{layer.key}", show_axes=False, visible=layer.visible)
             for layer in LAYERS
         }
         self.visible = True  # False while the Dataset tab shows its scene
@@ -126,7 +127,7 @@ class PipelineDrawing:
             pts_cam, colors = pts_cam[keep], colors[keep]
         self.add(
             "/cloud/points",
-            self.server.scene.add_point_cloud,
+            self.audience.scene.add_point_cloud,
             transform_points(T, pts_cam),
             colors,
             point_size=CLOUD_POINT_SIZE,
@@ -142,7 +143,7 @@ class PipelineDrawing:
                 continue
             self.add(
                 f"/segments/seg_{sid}",
-                self.server.scene.add_point_cloud,
+                self.audience.scene.add_point_cloud,
                 pts,
                 tuple(int(v) for v in seg.color),
                 point_size=SEGMENT_POINT_SIZE,
@@ -151,7 +152,7 @@ class PipelineDrawing:
             top = pts[np.argmax(pts[:, 2])]
             self.add(
                 f"/segments/label_{sid}",
-                self.server.scene.add_label,
+                self.audience.scene.add_label,
                 str(sid),
                 position=top + np.array([0.0, 0.0, 0.03]),
                 anchor="bottom-center",
@@ -164,7 +165,7 @@ class PipelineDrawing:
         wxyz = viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz
         self.add(
             "/sensor",
-            self.server.scene.add_camera_frustum,
+            self.audience.scene.add_camera_frustum,
             fov=intr.vertical_fov,
             aspect=intr.aspect,
             scale=0.08,
@@ -177,7 +178,7 @@ class PipelineDrawing:
         # The table (or floor) is the plane z = 0 of the world frame.
         self.add(
             "/table",
-            self.server.scene.add_grid,
+            self.audience.scene.add_grid,
             width=1.5,
             height=1.5,
             plane="xy",
@@ -190,19 +191,10 @@ class PipelineDrawing:
         )
 
     def set_default_view(self, scene: LoadedScene) -> None:
-        """Point new and connected browsers' cameras at the scene's objects from the sensor's side."""
+        """Point the browsers' cameras at the scene's objects from the sensor's side."""
         focus, extent = scene.focus()
         position, look_at = default_view(scene.T_world_cam, focus, max(extent, 0.3))
-        cam = self.server.initial_camera
-        cam.position, cam.look_at, cam.up = position, look_at, (0.0, 0.0, 1.0)
-        for client in self.server.get_clients().values():
-            try:
-                with client.atomic():
-                    client.camera.up_direction = (0.0, 0.0, 1.0)
-                    client.camera.position = position
-                    client.camera.look_at = look_at
-            except AssertionError:  # the client has not reported its camera yet; it starts from initial_camera
-                pass
+        self.audience.point_cameras(position, look_at)
 
     # ------------------------------------------------------------------------------------------
     # A completion
@@ -239,7 +231,7 @@ class PipelineDrawing:
         }
         self.add(
             name,
-            self.server.scene.add_mesh_simple,
+            self.audience.scene.add_mesh_simple,
             transform_points(scene.T_world_cam, mesh.vertices),
             np.asarray(mesh.faces),
             color=colors[kind],
@@ -282,7 +274,7 @@ class PipelineDrawing:
         identity = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (len(indices), 4))
         self.add(
             name,
-            self.server.scene.add_batched_meshes_simple,
+            self.audience.scene.add_batched_meshes_simple,
             cubes.vertices,
             cubes.faces,
             batched_wxyzs=identity,

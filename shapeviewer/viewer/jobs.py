@@ -1,8 +1,11 @@
-"""What the viewer's parts share to run jobs and talk to the browsers: the status line's idle
-text, the one-job-at-a-time slot, notifications and downloads.
+"""How the viewer runs jobs: one bounded pool of workers shared by every session, a queue per
+session, the status line's idle text and downloads.
 
-viser runs plain ``def`` GUI callbacks in a thread pool, so two clicks can start two jobs at once
-unless something stops the second.
+viser runs plain ``def`` GUI callbacks in its own thread pool, so jobs of several browsers (and two
+clicks of one) arrive at once. Each session's :class:`JobQueue` runs its jobs one at a time, in
+the caller's thread, holding one of the :class:`WorkerPool`'s slots while it computes: at most
+``workers`` jobs compute at once whoever started them, one user's job never refuses another
+user's click (it waits for a slot), and a session with too many jobs waiting is told at once.
 """
 
 from __future__ import annotations
@@ -11,41 +14,42 @@ import contextlib
 import logging
 import threading
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING
 
 import viser
-
-if TYPE_CHECKING:
-    from viser._gui_api import LiteralColor  # the notification colours viser takes; it does not export the name
 
 log = logging.getLogger(__name__)
 
 READY = "Ready. Click a segment to complete it."
-# notify(client, title, body, color=None, auto_close=8.0): tell a browser (None: every browser).
+# notify(client, title, body, color=None, auto_close=8.0): tell a browser (see Audience.notify).
 Notify = Callable[..., None]
+WAIT_STEP = 0.05  # seconds between looks at a closed session while a job waits
 
 
-def notify_clients(
-    server: viser.ViserServer,
-    client: viser.ClientHandle | None,
-    title: str,
-    body: str,
-    color: LiteralColor | None = None,
-    auto_close: float | None = 8.0,
-) -> None:
-    """Tell ``client`` (every client when None or when it has gone) something; never raises.
+class WorkerPool:
+    """At most ``workers`` jobs of all sessions compute at once (the model and the meshers are
+    CPU-bound: more at once would only slow each one down)."""
 
-    A job can outlive the browser that started it, so its client may have disconnected by the
-    time it reports: everyone connected then hears about it (they share the panel anyway).
-    """
-    log.info("%s: %s", title, body)
-    clients = server.get_clients()
-    targets = [client] if client is not None and client.client_id in clients else list(clients.values())
-    for c in targets:
+    def __init__(self, workers: int = 2) -> None:
+        if workers < 1:
+            raise ValueError(f"a worker pool needs at least one worker, not {workers}")
+        self.workers = workers
+        self._slots = threading.BoundedSemaphore(workers)
+
+    @contextlib.contextmanager
+    def slot(self, cancelled: Callable[[], bool], waiting: Callable[[], None] | None = None) -> Iterator[bool]:
+        """Yields True holding a slot, or False when ``cancelled()`` turned true while waiting;
+        ``waiting`` is called once when no slot is free at first."""
+        if not self._slots.acquire(blocking=False):
+            if waiting is not None:
+                waiting()
+            while not self._slots.acquire(timeout=WAIT_STEP):
+                if cancelled():
+                    yield False
+                    return
         try:
-            c.add_notification(title, body, color=color, auto_close_seconds=auto_close)
-        except Exception:  # the browser went away mid-call
-            log.debug("notification to client %s failed", c.client_id, exc_info=True)
+            yield True
+        finally:
+            self._slots.release()
 
 
 def send_download(
@@ -65,38 +69,90 @@ def send_download(
         client.send_file_download(name, data, save_immediately=True)
 
 
-class JobSlot:
-    """Runs one job at a time; the buttons that start jobs are disabled while one runs (double
-    clicks would queue jobs).
+class JobQueue:
+    """One session's jobs: run one at a time, in the shared :class:`WorkerPool`; the buttons that
+    start jobs are disabled while one runs (a double click would only queue a second job).
 
     Args:
-        buttons: the job buttons.
-        notify: tells a client that it has to wait.
-        after: called when a job ends (the app clears its "loading" notifications).
+        pool: the server's worker pool.
+        buttons: the session's job buttons.
+        notify: tells the session's browser that its queue is full.
+        max_waiting: jobs that may wait behind the running one; more are refused at once.
     """
 
     def __init__(
-        self, buttons: tuple[viser.GuiButtonHandle, ...], notify: Notify, after: Callable[[], None] | None = None
+        self,
+        pool: WorkerPool,
+        buttons: tuple[viser.GuiButtonHandle, ...],
+        notify: Notify,
+        max_waiting: int = 2,
     ) -> None:
-        self.lock = threading.Lock()  # held by the running job
+        self.pool = pool
         self.buttons = buttons
         self.notify = notify
-        self.after = after
+        self.max_waiting = max_waiting
+        self.closed = threading.Event()  # set when the session closes: waiting jobs give up
+        self._turn = threading.Lock()  # held by the session's running job
+        self._count = threading.Lock()
+        self._queued = 0  # running + waiting
+
+    @property
+    def busy(self) -> bool:
+        """Whether a job of this session runs or waits."""
+        return self._queued > 0
+
+    def close(self) -> None:
+        """Refuse new jobs and let waiting ones give up (the running one finishes)."""
+        self.closed.set()
 
     @contextlib.contextmanager
     def take(self, client: viser.ClientHandle | None) -> Iterator[bool]:
-        """Yields True while holding the slot, or False (after telling the client) when another job runs."""
-        if not self.lock.acquire(blocking=False):
-            self.notify(client, "Busy", "Another job is still running; try again in a moment.", auto_close=2.0)
+        """Yields True while this job runs, or False: the queue was full (the client is told) or
+        the session closed while the job waited."""
+        with self._count:
+            full = self._queued > self.max_waiting
+            if not full and not self.closed.is_set():
+                self._queued += 1
+        if full:
+            self.notify(
+                client,
+                "Busy",
+                f"{self._queued} of your jobs are running or waiting; try again once they are done.",
+                auto_close=3.0,
+            )
             yield False
             return
-        for b in self.buttons:
-            b.disabled = True
+        if self.closed.is_set():
+            yield False
+            return
+        try:
+            with self._wait_turn() as mine, self.pool.slot(self.closed.is_set) as computing:
+                if not (mine and computing):
+                    yield False
+                    return
+                self._set_buttons(disabled=True)
+                try:
+                    yield True
+                finally:
+                    self._set_buttons(disabled=False)
+        finally:
+            with self._count:
+                self._queued -= 1
+
+    @contextlib.contextmanager
+    def _wait_turn(self) -> Iterator[bool]:
+        while not self._turn.acquire(timeout=WAIT_STEP):
+            if self.closed.is_set():
+                yield False
+                return
         try:
             yield True
         finally:
-            for b in self.buttons:
-                b.disabled = False
-            if self.after is not None:
-                self.after()
-            self.lock.release()
+            self._turn.release()
+
+    def _set_buttons(self, disabled: bool) -> None:
+        for b in self.buttons:
+            try:
+                b.disabled = disabled
+            except Exception:  # the tab closed: its buttons are gone
+                log.debug("button update failed", exc_info=True)

@@ -1,5 +1,6 @@
-"""The Pipeline tab's controls wired to the app: which method each button, dropdown and checkbox
-calls. Kept apart from :mod:`.app` so the app reads as its jobs, this as its layout's events."""
+"""The Pipeline tab's controls wired to the session: which method each button, dropdown and
+checkbox calls. Kept apart from :mod:`.session` so the session reads as its jobs, this as its
+layout's events."""
 
 from __future__ import annotations
 
@@ -11,14 +12,14 @@ import viser
 from .jobs import send_download
 
 if TYPE_CHECKING:
-    from .app import ViewerApp
+    from .session import Session
 
 
-def wire_callbacks(app: ViewerApp) -> None:
-    """Connect every control of ``app.panel`` and the scene's clicks to ``app``'s methods."""
+def wire_callbacks(app: Session) -> None:
+    """Connect every control of ``app.panel`` and the scene's clicks to the session ``app``'s methods."""
     p = app.panel
 
-    @app.server.scene.on_click()
+    @app.audience.scene.on_click()
     def _(event: viser.SceneClickEvent) -> None:
         if app.drawing.visible:  # the dataset is on screen: its clicks are not picks
             app.click(np.asarray(event.ray_origin), np.asarray(event.ray_direction), event.client)
@@ -106,9 +107,3 @@ def wire_callbacks(app: ViewerApp) -> None:
             )
 
         button.on_click(export)
-
-    app.server.on_client_connect(app.on_connect)
-
-    @app.server.on_client_disconnect
-    def _(client: viser.ClientHandle) -> None:
-        app.loading_notes.pop(client.client_id, None)

@@ -10,8 +10,8 @@ view's items share one *display frame*: the object's own frame (catalogue axes, 
 about z so that the side the sensor did not see faces the browser camera, with the ground truth
 standing on z = 0; each item is then shifted along +x into its column (:func:`layout_view`).
 
-viser's 3D scene is shared by the tabs (and the browser does not report tab changes), so the
-dataset is drawn under its own root frame ``/dataset`` that is only visible while the dataset is
+A session's 3D scene is shared by its two tabs (and the browser does not report tab changes), so
+the dataset is drawn under its own root frame ``/dataset`` that is only visible while the dataset is
 *shown*; showing it hides the pipeline's nodes and restores them afterwards (the app's
 ``set_pipeline_visible``). Selecting a view shows the dataset; "Back to the pipeline" and "Open in
 pipeline" return.
@@ -26,5 +26,6 @@ together. Without a browser, tests call :meth:`DatasetTab.select`, :meth:`Datase
 from .drawing import ROOT
 from .layout import ViewLayout, layout_view
 from .tab import DEFAULT, DatasetHooks, DatasetTab
+from .work import SampleBuild
 
-__all__ = ["DEFAULT", "ROOT", "DatasetHooks", "DatasetTab", "ViewLayout", "layout_view"]
+__all__ = ["DEFAULT", "ROOT", "DatasetHooks", "DatasetTab", "SampleBuild", "ViewLayout", "layout_view"]

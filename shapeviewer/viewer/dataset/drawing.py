@@ -22,6 +22,7 @@ import viser
 from ...camera import Intrinsics, transform_points
 from ...evaluation.results import ResultsStore, read_mesh, read_points
 from ...evaluation.summaries import GraspSummary, ViewInfo
+from ..audience import Audience
 from .layout import DEFAULT_ASPECT, ViewLayout
 from .summary import COLORS
 
@@ -137,9 +138,9 @@ def best_grasp_hands(
 class DatasetScene:
     """The dataset's scene nodes under :data:`ROOT`, and the browser cameras it moves."""
 
-    def __init__(self, server: viser.ViserServer) -> None:
-        self.server = server
-        self.root = server.scene.add_frame(ROOT, show_axes=False, visible=False)
+    def __init__(self, audience: Audience) -> None:
+        self.audience = audience
+        self.root = audience.scene.add_frame(ROOT, show_axes=False, visible=False)
         self.nodes: list[str] = []  # names of the drawn view's nodes
         self._saved_cameras: dict[int, tuple] = {}  # client id -> (fov, up, position, look_at) to restore
 
@@ -154,7 +155,7 @@ class DatasetScene:
         """Replace the drawn view: a floor, each of ``kinds`` in its column (``items``: camera-frame
         ``(vertices, faces)``, faces None for points) under its label, the sensor, and ``hands``."""
         self.clear()
-        scene = self.server.scene
+        scene = self.audience.scene
         self._add(
             scene.add_grid,
             f"{ROOT}/floor",
@@ -235,19 +236,19 @@ class DatasetScene:
     def clear(self) -> None:
         """Remove the drawn view's nodes."""
         for name in self.nodes:
-            h = self.server.scene.get_handle_by_name(name)
+            h = self.audience.scene.get_handle_by_name(name)
             if h is not None:
                 h.remove()
         self.nodes = []
 
     def handles(self) -> dict[str, viser.SceneNodeHandle]:
-        """The drawn view's nodes now on the server, by name."""
-        found = {name: self.server.scene.get_handle_by_name(name) for name in self.nodes}
+        """The drawn view's nodes now in the session's scene, by name."""
+        found = {name: self.audience.scene.get_handle_by_name(name) for name in self.nodes}
         return {name: h for name, h in found.items() if h is not None}
 
     def aspect(self, client: viser.ClientHandle | None) -> float:
         """Canvas width / height of ``client`` (default: the first that reported its camera)."""
-        for c in [client] if client is not None else list(self.server.get_clients().values()):
+        for c in [client] if client is not None else list(self.audience.get_clients().values()):
             try:
                 return float(c.camera.aspect)
             except (AssertionError, AttributeError):  # no camera reported yet
@@ -257,7 +258,7 @@ class DatasetScene:
     def aim_cameras(self, layout: ViewLayout, fov: float) -> None:
         """Point every browser camera at ``layout``'s row (``fov``: vertical, radians), remembering
         how each was set the first time so that :meth:`restore_cameras` can put it back."""
-        for c in self.server.get_clients().values():
+        for c in self.audience.get_clients().values():
             try:
                 with c.atomic():
                     if c.client_id not in self._saved_cameras:
@@ -277,7 +278,7 @@ class DatasetScene:
 
     def restore_cameras(self) -> None:
         """Put every browser camera back as it was before :meth:`aim_cameras`."""
-        for c in self.server.get_clients().values():
+        for c in self.audience.get_clients().values():
             saved = self._saved_cameras.pop(c.client_id, None)
             if saved is None:
                 continue

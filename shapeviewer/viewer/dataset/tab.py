@@ -14,9 +14,10 @@ import viser
 
 from ...evaluation.records import KINDS
 from ...evaluation.results import ResultsStore
-from ...evaluation.run import sample_store_complete, sample_store_dir
 from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
 from ...evaluation.tables import panel_markdown
+from ..audience import Audience
+from ..gui import set_value
 from ..jobs import send_download
 from .controls import DatasetControls, build_controls
 from .drawing import DatasetScene, DisplayMeshes, best_grasp_hands
@@ -64,27 +65,27 @@ class DatasetTab:
     """The Dataset tab's state and actions; the GUI callbacks call the same methods.
 
     Args:
-        server: the viser server (its scene is shared with the pipeline tab).
+        audience: the session's browser tab (its scene is shared with the pipeline tab).
         tab: the tab to put the controls in; ``pipeline_tab`` gets a "back to the pipeline" button
             shown while the dataset is on screen.
-        results: a results folder, :data:`DEFAULT` (the sample store in the user cache, built in a
-            background thread when missing), or None (no store: the tab says how to open one).
+        results: a results folder (it may still be empty while ``build`` fills it), or None (no
+            store: the tab says how to open one).
         hooks: see :class:`DatasetHooks`.
-        weights: CNN weights for building the sample store (None: the shipped model).
+        build: the server's background build of the sample store into ``results``, or None.
     """
 
     def __init__(
         self,
-        server: viser.ViserServer,
+        audience: Audience,
         tab: viser.GuiTabHandle,
         pipeline_tab: viser.GuiTabHandle,
-        results: str | Path | None,
+        results: Path | None,
         hooks: DatasetHooks,
-        weights: str | Path | None = None,
+        build: SampleBuild | None = None,
     ) -> None:
-        self.server = server
+        self.audience = audience
         self.hooks = hooks
-        self.weights = weights
+        self.build = build
         self.store: ResultsStore | None = None
         self.active = False
         self.shown: ShownView | None = None
@@ -93,14 +94,13 @@ class DatasetTab:
         self.last_error: str | None = None
         self._lock = threading.RLock()  # GUI callbacks run in a thread pool
         self._closed = threading.Event()  # set by shutdown(): background threads stop touching the GUI
-        self._sample_to_build: Path | None = None
         self._generation = -1  # the store generation the index shows
-        self.scene = DatasetScene(server)
+        self.scene = DatasetScene(audience)
         self.meshes = DisplayMeshes()
-        self.c: DatasetControls = build_controls(server.gui, tab, pipeline_tab)
+        self.c: DatasetControls = build_controls(audience.gui, tab, pipeline_tab)
         self.bars = BarsWorker(self._show_bars, self._closed)
-        self.build = SampleBuild(server, self.c, self.refresh, self._status_text, self._fail, self._closed)
-        self.c.wire(server.gui, self)
+        self.c.wire(audience.gui, self)
+        self.c.progress.visible = self.building
         self._open(results)
         # Started once the store is open (a bad --results folder raises above and leaves no thread).
         self._threads = [self.bars.thread]
@@ -115,7 +115,7 @@ class DatasetTab:
     @property
     def building(self) -> bool:
         """Whether the sample store is being built."""
-        return self.build.running
+        return self.build is not None and self.build.running
 
     @property
     def bars_drawn(self) -> tuple | None:
@@ -124,7 +124,7 @@ class DatasetTab:
 
     @property
     def drawn(self) -> dict[str, viser.SceneNodeHandle]:
-        """The dataset's scene nodes now on the server, by name."""
+        """The dataset's scene nodes now drawn for the session, by name."""
         return self.scene.handles()
 
     def shown_view(self) -> tuple[str, int] | None:
@@ -280,16 +280,13 @@ class DatasetTab:
             self.c.summary.content = panel_markdown(self.store.summary(), self.store.grasp_summary())
             self.bars.request(self.objects, f["method"], f["metric"])
 
-    def start_background(self, completer) -> None:
-        """Start building the sample store, if it is wanted and missing, with the app's CNN.
-
-        Sharing the app's :class:`~shapeviewer.model.Completer` (inference only) also keeps two
-        threads from loading models at once: TorchScript parses Python source, and CPython 3.11's
-        ``ast.parse`` is not safe in two threads at the same time.
-        """
-        root, self._sample_to_build = self._sample_to_build, None
-        if root is not None and not self._closed.is_set():
-            self.build.start(root, self.weights, completer)
+    def build_progress(self, percent: float, text: str | None) -> None:
+        """The sample build's progress (``text`` None: it is over; the status says what the store holds)."""
+        if self._closed.is_set():
+            return
+        set_value(self.c.progress, percent)
+        self.c.progress.visible = text is not None
+        self.c.status.content = self._status_text() if text is None else text
 
     def shutdown(self) -> None:
         """Stop the background work before the server goes away (waits for a chart or index update
@@ -309,12 +306,9 @@ class DatasetTab:
                 "`shapeviewer evaluate`)."
             )
             return
-        if results == DEFAULT:
-            root = sample_store_dir(self.weights)
-            self.store = ResultsStore(root)
+        if self.build is not None:  # the sample store: may not exist yet (the build writes it)
+            self.store = ResultsStore(results)
             self.refresh_index()
-            if not sample_store_complete(root):
-                self._sample_to_build = root  # started by start_background() once the app has its CNN
             return
         root = Path(results).expanduser()
         if not root.is_dir():
@@ -326,11 +320,15 @@ class DatasetTab:
         assert self.store is not None  # called by refresh(), refresh_index() and the sample build: all with a store
         return status_markdown(self.store.counts(), str(self.store.root), self.building)
 
-    def _fail(self, message: str) -> None:
+    def build_failed(self, message: str) -> None:
+        """The sample build failed with ``message``: say so in the tab."""
         self.last_error = message
+        if not self._closed.is_set():
+            self.c.progress.visible = False
+            self.c.status.content = f"**Building the sample store failed:** {message}"
 
     def _show_bars(self, png: bytes | None, method: str, metric: str) -> None:
-        self.c.show_bars(self.server.gui, png, bars_caption(method, metric))
+        self.c.show_bars(self.audience.gui, png, bars_caption(method, metric))
 
     def _sync_selectors(self) -> None:
         """Fill the object and view dropdowns from the index and the shown view (no callbacks act)."""
@@ -385,7 +383,7 @@ class DatasetTab:
         self.shown = ShownView(o, info, completions, grasps, layout)
         self.c.details.content = view_markdown(o, info, completions, grasps)
         self._activate(layout)
-        self.server.flush()
+        self.audience.flush()
         self.shown.seconds = time.perf_counter() - t0
         self.c.index.content = index_markdown(
             self.objects, self.c.method.value, self.c.metric.value, name, self.total_objects

@@ -10,14 +10,16 @@ import logging
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import viser
 
 from ...evaluation.run import build_sample_store
 from ...evaluation.summaries import ObjectSummary
-from ..gui import set_value
-from .controls import DatasetControls
 from .summary import bars_png, worst_first
+
+if TYPE_CHECKING:
+    from .tab import DatasetTab
 
 log = logging.getLogger(__name__)
 
@@ -94,35 +96,20 @@ class _Stopped(Exception):
 
 
 class SampleBuild:
-    """Evaluates the sample views into a results store in the background; the index fills in as
-    views finish. Every browser (also those connecting later) sees a progress notification until
-    it is done.
+    """Evaluates the sample views into the sample results store in the background, once per
+    server; the index of every session's Dataset tab fills in as views finish. Every browser
+    (also those connecting later) sees a progress notification until it is done.
 
     Args:
         server: for the notifications.
-        controls: the tab's status line and progress bar.
-        refresh: re-reads the store (the tab's :meth:`~.tab.DatasetTab.refresh`).
-        idle_status: the tab's status text once the build is over.
-        failed: called with a message when the build fails.
-        closed: set when the tab shuts down (the build stops at its next step).
+        tabs: the open sessions' Dataset tabs (asked at each step: sessions come and go).
     """
 
-    def __init__(
-        self,
-        server: viser.ViserServer,
-        controls: DatasetControls,
-        refresh: Callable[[], None],
-        idle_status: Callable[[], str],
-        failed: Callable[[str], None],
-        closed: threading.Event,
-    ) -> None:
+    def __init__(self, server: viser.ViserServer, tabs: Callable[[], list[DatasetTab]]) -> None:
         self.server = server
-        self.c = controls
-        self.refresh = refresh
-        self.idle_status = idle_status
-        self.failed = failed
-        self.closed = closed
+        self.tabs = tabs
         self.running = False
+        self._stopped = threading.Event()
         self._notes: dict[int, viser.NotificationHandle] = {}  # client id -> progress notification
         self._step = ""
         server.on_client_connect(self._add_note)
@@ -134,25 +121,29 @@ class SampleBuild:
     def start(self, root: Path, weights, completer) -> None:
         """Build the sample store in ``root`` with ``completer`` (a
         :class:`~shapeviewer.model.Completer`) loaded from ``weights``, in a daemon thread."""
+        self.running = True
         threading.Thread(target=self._run, args=(root, weights, completer), name="sample-store", daemon=True).start()
 
+    def stop(self) -> None:
+        """Stop at the next step (the server is stopping)."""
+        self._stopped.set()
+
     def _run(self, root: Path, weights, completer) -> None:
-        self.running = True
-        self.c.progress.visible = True
         self._step = "starting"
 
         def progress(done: int, total: int, what: str) -> None:
-            if self.closed.is_set():
+            if self._stopped.is_set():
                 raise _Stopped
-            set_value(self.c.progress, 100.0 * done / max(total, 1))
             if what == "done":
                 return
             self._step = f"step {done + 1} of {total}: {what}"
-            self.c.status.content = f"_Building the sample results store ({self._step})..._  \n`{root}`"
+            text = f"_Building the sample results store ({self._step})..._  \n`{root}`"
+            for tab in self.tabs():
+                tab.build_progress(100.0 * done / max(total, 1), text)
+                if done:
+                    tab.refresh()
             for note in list(self._notes.values()):
                 note.body = self._note_body()
-            if done:
-                self.refresh()
 
         for client in self.server.get_clients().values():
             self._add_note(client)
@@ -160,20 +151,20 @@ class SampleBuild:
             build_sample_store(root, weights=weights, progress=progress, completer=completer)
         except _Stopped:
             return
-        except Exception as e:  # keep the viewer alive; say why in the tab
+        except Exception as e:  # keep the viewer alive; say why in the tabs
             log.exception("building the sample store failed")
-            self.failed(f"sample store: {e}")
-            self.c.status.content = f"**Building the sample store failed:** {e}"
+            for tab in self.tabs():
+                tab.build_failed(f"sample store: {e}")
             return
         finally:
             self.running = False
-            if not self.closed.is_set():
-                self.c.progress.visible = False
+            if not self._stopped.is_set():
                 for note in list(self._notes.values()):
                     note.remove()
             self._notes.clear()
-        self.refresh()
-        self.c.status.content = self.idle_status()
+        for tab in self.tabs():
+            tab.refresh()
+            tab.build_progress(100.0, None)
 
     def _note_body(self) -> str:
         return (

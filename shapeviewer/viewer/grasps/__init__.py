@@ -6,10 +6,11 @@ mesh (camera frame on its :class:`~shapeviewer.pipeline.Completion`) is mapped w
 ``scene.T_world_cam`` before planning; a grasp's ``T_world_palm`` places the palm frame, in which
 :func:`~shapeviewer.grasp.hands.hand_meshes` gives the hand's links.
 
-Jobs: planning and execution run in a background thread, one grasp job at a time, outside the
-app's job slot, so the rest of the viewer keeps working meanwhile; a mesh that the planner needs
-and the segment lacks is made first through the app (which takes its slot for the few moments
-it needs). The controller reaches the app only through a :class:`GraspHost`.
+Jobs: planning and execution run in a background thread, one grasp job per session at a time,
+outside the session's job queue, so the rest of the viewer keeps working meanwhile; they compute
+in a small worker pool shared by all sessions. A mesh that the planner needs and the segment lacks
+is made first through the session (in its job queue, for the few moments it needs). The
+controller reaches the session only through a :class:`GraspHost`.
 
 One module per job: :mod:`.state` (plain values: a segment's grasps, a job, the true object),
 :mod:`.summary` (the folder's text), :mod:`.controls` (the folder's GUI), :mod:`.drawing` (scene

@@ -17,8 +17,9 @@ from ...grasp.execute import ExecutionResult, execute_grasps, lift_test
 from ...grasp.hands import HAND_NAMES
 from ...grasp.plan import plan
 from ...grasp.serialize import grasps_to_json, scene_zip
+from ..audience import Audience
 from ..gui import set_value
-from ..jobs import Notify, send_download
+from ..jobs import Notify, WorkerPool, send_download
 from ..state import MESH_KINDS, LoadedScene
 from .controls import DEFAULT_GRASPS, MAX_GRASPS, NO_GRASP, build_grasp_panel
 from .drawing import GraspDrawing
@@ -58,17 +59,19 @@ class GraspController:
     """Plans, executes, draws and exports the grasps of the app's segments (one job at a time).
 
     Args:
-        server: the viser server (the Grasps folder goes in its GUI, the hands in its scene).
+        audience: the browser tab (or every browser) of the session: the Grasps folder goes in its
+            GUI, the hands in its scene.
         host: see :class:`GraspHost`.
+        pool: the worker pool grasp jobs compute in (shared by the sessions).
         order: where the Grasps folder goes among the panel's folders.
     """
 
-    def __init__(self, server: viser.ViserServer, host: GraspHost, order: float | None = None) -> None:
-        self.server = server
+    def __init__(self, audience: Audience, host: GraspHost, pool: WorkerPool, order: float | None = None) -> None:
+        self.audience = audience
         self.host = host
-        self.panel = build_grasp_panel(server.gui, order)
-        self.drawing = GraspDrawing(server)
-        self.jobs = GraspJobs(self.panel, host.notify, host.set_status)
+        self.panel = build_grasp_panel(audience.gui, order)
+        self.drawing = GraspDrawing(audience)
+        self.jobs = GraspJobs(self.panel, pool, host.notify, host.set_status)
         self.sets: dict[int, SegmentGrasps] = {}
         self.current: int | None = None  # the segment whose grasps the dropdown lists
         self.selected: int | None = None  # index of the selected grasp in that segment's list
@@ -162,7 +165,7 @@ class GraspController:
         return self.jobs.cancel()
 
     def shutdown(self, timeout: float = 10.0) -> None:
-        """Cancel the running job and wait for its thread (before the server stops)."""
+        """Cancel the running job and wait for its thread (before the session closes)."""
         self.jobs.shutdown(timeout)
 
     def _mesh(self, segment_id: int, method: str, client: viser.ClientHandle | None) -> trimesh.Trimesh:

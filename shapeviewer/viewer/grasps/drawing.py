@@ -22,6 +22,7 @@ import viser
 
 from ...camera import transform_points
 from ...grasp.hands import Hand, get_hand, hand_meshes
+from ..audience import Audience
 from ..rays import first_hit, sample_segments
 from ..visuals import shade
 from .state import SegmentGrasps
@@ -109,8 +110,8 @@ class GraspDrawing:
     the nodes.
     """
 
-    def __init__(self, server: viser.ViserServer) -> None:
-        self.server = server
+    def __init__(self, audience: Audience) -> None:
+        self.audience = audience
         self.lock = threading.RLock()
         self._roots: dict[int, viser.SceneNodeHandle] = {}
         self._hands: dict[tuple[int, str], _HandNodes] = {}  # (segment, node key "g<k>" | "exec_g<k>")
@@ -135,7 +136,7 @@ class GraspDrawing:
         sid = s.segment_id
         with self.lock:
             self.remove_segment(sid)
-            self._roots[sid] = self.server.scene.add_frame(f"/grasps/seg_{sid}", show_axes=False)
+            self._roots[sid] = self.audience.scene.add_frame(f"/grasps/seg_{sid}", show_axes=False)
             hand = get_hand(s.hand)
             for k, (g, color) in enumerate(zip(s.grasps, epsilon_colors([g.epsilon for g in s.grasps]))):
                 self._draw_hand(sid, k, False, hand, g.T_world_palm, g.joints, color, None)
@@ -147,7 +148,7 @@ class GraspDrawing:
         if s.truth_world is None:
             return
         with self.lock:
-            self.server.scene.add_mesh_simple(
+            self.audience.scene.add_mesh_simple(
                 f"/grasps/seg_{sid}/truth",
                 np.asarray(s.truth_world.vertices, np.float32),
                 np.asarray(s.truth_world.faces, np.uint32),
@@ -181,7 +182,7 @@ class GraspDrawing:
         if old is not None:
             old.frame.remove()
         name = f"/grasps/seg_{sid}/{key}"
-        scene = self.server.scene
+        scene = self.audience.scene
         frame = scene.add_frame(
             name,
             show_axes=False,

@@ -1,7 +1,7 @@
-"""Running grasp jobs: one at a time, each in a background thread, outside the app's job slot
-(:class:`~..jobs.JobSlot`), so the rest of the viewer keeps working meanwhile.
-
-The GUI is shared by every browser, so the progress bar and the Cancel button are too.
+"""Running a session's grasp jobs: one at a time, each in a background thread, outside the
+session's job queue (:class:`~..jobs.JobQueue`), so the rest of the viewer keeps working meanwhile.
+Planning is the heaviest job there is, so it computes in its own small :class:`~..jobs.WorkerPool`
+shared by every session: other users' clicks keep the main pool's workers.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 import viser
 
 from ..gui import set_value
-from ..jobs import READY, Notify
+from ..jobs import READY, Notify, WorkerPool
 from .controls import GraspPanel
 from .state import GraspJob, GraspJobError
 
@@ -26,12 +26,14 @@ class GraspJobs:
 
     Args:
         panel: the Grasps folder (job buttons, Cancel, progress bar).
+        pool: the worker pool grasp jobs compute in.
         notify: tells the browsers about failures and a busy runner.
         set_status: the panel's status line (:data:`~..jobs.READY` when a job ends).
     """
 
-    def __init__(self, panel: GraspPanel, notify: Notify, set_status: Callable[[str], None]) -> None:
+    def __init__(self, panel: GraspPanel, pool: WorkerPool, notify: Notify, set_status: Callable[[str], None]) -> None:
         self.panel = panel
+        self.pool = pool
         self.notify = notify
         self.set_status = set_status
         self.job: GraspJob | None = None  # the running or last job
@@ -57,7 +59,10 @@ class GraspJobs:
 
         def run() -> None:
             try:
-                job.result = work(job)
+                waiting = lambda: self.set_status("_Grasps: waiting for a free worker (others are planning)..._")  # noqa: E731
+                with self.pool.slot(job.cancel_event.is_set, waiting) as computing:
+                    if computing:
+                        job.result = work(job)
             except GraspJobError as e:
                 job.error = str(e)
                 if not job.cancel_event.is_set():  # after Cancel (or a new scene) it is no news
@@ -102,7 +107,7 @@ class GraspJobs:
         return True
 
     def shutdown(self, timeout: float = 10.0) -> None:
-        """Cancel the running job and wait for its thread (before the server stops)."""
+        """Cancel the running job and wait for its thread (before the session closes)."""
         job = self.job
         if job is not None and job.thread is not None:
             job.cancel()
@@ -126,5 +131,5 @@ class GraspJobs:
             self._last_progress = -1
             if not running:
                 self.set_status(READY)
-        except Exception:  # the server is stopping
+        except Exception:  # the tab closed or the server is stopping
             log.debug("could not update the grasp panel", exc_info=True)

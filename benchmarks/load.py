@@ -1,0 +1,865 @@
+"""Load: several users on one viewer server at once (issue 13, item 6).
+
+    python benchmarks/load.py [--sessions 5] [--minutes 2] [--planners 1] [--browser] [--json out.json]
+
+Starts the server as a subprocess (``python app.py --port P``, so that its memory can be read from
+``/proc``; or ``--url URL [--pid PID]`` for one already running), then runs ``--sessions`` lightweight
+sessions: headless viser clients in this process that speak viser's websocket protocol
+(benchmarks/viser_client.py) and draw nothing. With ``--browser``, one more session is a real
+headless Chromium (Playwright) that clicks on its canvas.
+
+Every session, for ``--minutes`` (then no new action; an action under way ends within its timeout):
+
+* clicks a segment: a scene click whose ray goes from the session's camera to a point of the
+  segment (its centroid, or another of its points when the centroid is hidden from the camera by
+  another segment or a grasp's hand), knowing the segments only from the ``/segments/seg_N``
+  point clouds it was sent; then waits for its own ``/fast_mesh/seg_N`` (click -> own fast mesh
+  received, the time printed);
+* the first ``--planners`` sessions then press "Plan grasps" (the button found by its label in the
+  GUI the session was sent) and wait for their ``/grasps/seg_N`` (the time printed) and the
+  notification that ends the plan;
+* pauses about ``--pause`` seconds, and starts again.
+
+Everything is learnt from what the session's own connection receives, so the benchmark runs the
+same against a server whose scene and GUI are shared by every browser and one with a scene and GUI
+per browser. (With a shared scene, another session's mesh of the very segment a session waits for
+cannot be told from its own: it is counted as its own, so there the wrong-session count is a lower
+bound and the latencies are partly other sessions'.) The browser's times are from the mouse click
+to its page's websocket receiving the mesh (seen through Playwright), not to the mesh being drawn.
+
+Reported: sessions, actions, errors (timeouts, refusals ("Busy"), red notifications, clicks that
+hit no segment), results shown in the WRONG session (a fast mesh or grasps that a session received
+for an action it did not do), click -> own fast mesh p50/p95/max, and the server's memory (RSS of
+its process): at start, the baseline (after a warm-up session, one click and one plan, has come
+and gone), the peak while the sessions run, and ``--settle`` seconds after they all closed.
+
+Targets (issue 13, 5 sessions x 2 minutes with one planning grasps): 0 errors, 0 results in the
+wrong session, click -> own fast mesh p95 <= 0.5 s (lightweight sessions), memory back to the
+baseline (taken here as within 10 % or 50 MB of it, whichever is larger).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import importlib.util
+import json
+import os
+import random
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import viser
+from viser_client import ViserClient, free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# shapeviewer/viewer/rays.py is plain numpy (no viser, no torch): loaded by path, so that this
+# process picks segments exactly as the viewer does without importing the viewer (and the model).
+_spec = importlib.util.spec_from_file_location("_shapeviewer_rays", ROOT / "shapeviewer" / "viewer" / "rays.py")
+assert _spec is not None and _spec.loader is not None
+rays = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(rays)
+
+# Scene nodes and GUI labels of the viewer (shapeviewer/viewer/drawing.py, grasps/drawing.py, grasps/controls.py).
+SEGMENT = re.compile(r"^/segments/seg_(\d+)$")
+FAST_MESH = re.compile(r"^/fast_mesh/seg_(\d+)$")
+GRASPS = re.compile(r"^/grasps/seg_(\d+)$")  # the frame under which one plan's hands are drawn
+HAND_STICKS = re.compile(r"^/grasps/seg_\d+/g\d+/skeleton$")  # a hand's stick figure: clicks pick it
+PLAN_BUTTON = "Plan grasps"
+HAND_PICK_SPACING = 0.004  # m between the points along a stick figure the viewer picks (grasps/drawing.py)
+# Notification titles that end an action (shapeviewer/viewer/app.py, jobs.py, grasps/).
+BUSY = "Busy"
+MISSED = "No segment there"
+EMPTY = "Empty completion"
+PLAN_DONE = {"Grasps ready": "ok", "No grasp found": "no grasp"}
+PLAN_LOST = ("Planning cancelled", "Grasps dropped")
+
+TARGET_P95 = 0.5  # s, click -> own fast mesh received (lightweight sessions)
+MEMORY_TOLERANCE = (0.10, 50.0)  # "back to baseline": within 10 % or 50 MB of it
+ERROR_KINDS = ("timeout", "refused", "error", "missed", "not ready")
+
+
+# ----------------------------------------------------------------------------------------------
+# The server and its memory
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of process ``pid`` (MB), or None when it has gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+class Server:
+    """The viewer server as a subprocess (``python app.py``), its log in a temporary file."""
+
+    def __init__(self, port: int, extra_args: list[str], root: Path = ROOT) -> None:
+        self.log = Path(tempfile.mkstemp(prefix="shapeviewer-load-", suffix=".log")[1])
+        self.cmd = [sys.executable, str(root / "app.py"), "--port", str(port), *extra_args]
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+        with self.log.open("w") as out:
+            self.proc = subprocess.Popen(
+                self.cmd, cwd=root, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            )
+        self.pid = self.proc.pid
+        self.stop_seconds: float | None = None
+
+    def wait_ready(self, timeout: float) -> str:
+        """The URL the server prints once it serves (raises if it exits or takes longer than ``timeout`` s)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = re.search(r"ready on (\S+)", self.log.read_text(errors="replace"))
+            if found:
+                return found.group(1)
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"the server exited ({self.proc.returncode}); its log:\n{self.log_tail()}")
+            time.sleep(0.2)
+        raise RuntimeError(f"the server was not ready within {timeout:.0f} s; its log:\n{self.log_tail()}")
+
+    def log_tail(self, n: int = 30) -> str:
+        return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])
+
+    def tracebacks(self) -> int:
+        return self.log.read_text(errors="replace").count("Traceback (most recent call last)")
+
+    def stop(self, timeout: float = 15.0) -> None:
+        """Ctrl-C (SIGINT) to the server, SIGKILL if it has not exited within ``timeout`` s."""
+        if self.proc.poll() is not None:
+            return
+        t0 = time.monotonic()
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout)
+            self.stop_seconds = time.monotonic() - t0
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
+
+
+class MemoryWatch:
+    """Samples a process's RSS every ``interval`` s in the background; ``peak`` since :meth:`reset_peak`."""
+
+    def __init__(self, pid: int | None, interval: float = 0.25) -> None:
+        self.pid = pid
+        self.interval = interval
+        self.peak: float | None = None
+        self._task: asyncio.Task | None = None
+
+    def now(self) -> float | None:
+        return None if self.pid is None else rss_mb(self.pid)
+
+    def reset_peak(self) -> None:
+        self.peak = self.now()
+
+    async def _run(self) -> None:
+        while True:
+            value = self.now()
+            if value is not None:
+                self.peak = value if self.peak is None else max(self.peak, value)
+            await asyncio.sleep(self.interval)
+
+    def start(self) -> None:
+        if self.pid is not None:
+            self._task = asyncio.create_task(self._run())
+
+    def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+
+
+# ----------------------------------------------------------------------------------------------
+# A session
+
+
+@dataclass
+class Pending:
+    """The action a session waits for: a click on segment ``segment`` or a grasp plan on it."""
+
+    kind: str  # "click" | "plan"
+    segment: int
+    t0: float
+    future: asyncio.Future
+    foreign_seen: bool = False  # another session's result arrived meanwhile
+    first_result: float | None = None  # a plan: when its first grasp node arrived (it ends with a notification)
+
+
+@dataclass
+class Stats:
+    """What one session did and saw."""
+
+    name: str
+    kind: str  # "lightweight" | "browser"
+    planner: bool
+    clicks: int = 0
+    plans: int = 0
+    outcomes: Counter = field(default_factory=Counter)  # "click ok", "click timeout", "plan refused", ...
+    click_seconds: list[float] = field(default_factory=list)
+    plan_seconds: list[float] = field(default_factory=list)
+    wrong: list[str] = field(default_factory=list)  # results received for actions this session did not do
+    disturbed: int = 0  # actions during which another session's result arrived
+    late: int = 0  # own results that arrived after their action had timed out
+    red: list[str] = field(default_factory=list)  # red notifications received
+    unattributed: Counter = field(default_factory=Counter)  # refusals/errors while no action was pending
+    details: list[str] = field(default_factory=list)
+
+    @property
+    def errors(self) -> int:
+        return sum(n for k, n in self.outcomes.items() if k.split(" ", 1)[1] in ERROR_KINDS) + sum(
+            self.unattributed.values()
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "planner": self.planner,
+            "clicks": self.clicks,
+            "plans": self.plans,
+            "errors": self.errors,
+            "outcomes": dict(self.outcomes),
+            "wrong_session_results": len(self.wrong),
+            "wrong_session_examples": self.wrong[:10],
+            "actions_disturbed": self.disturbed,
+            "late_results": self.late,
+            "red_notifications": self.red,
+            "unattributed": dict(self.unattributed),
+            "click_to_own_fast_mesh_s": self.click_seconds,
+            "plan_to_own_grasps_s": self.plan_seconds,
+            "details": self.details[:50],
+        }
+
+
+class Session:
+    """One user: a connection (a lightweight client, or a browser's websocket seen through Playwright)
+    and the action it waits for. Subclasses send the clicks."""
+
+    kind = "lightweight"
+
+    def __init__(self, name: str, client: ViserClient, planner: bool, rng: random.Random, args) -> None:
+        self.client = client
+        self.planner = planner
+        self.rng = rng
+        self.args = args
+        self.stats = Stats(name, self.kind, planner)
+        self.pending: Pending | None = None
+        self.timed_out: dict[str, set[int]] = {"click": set(), "plan": set()}
+        self.empty: set[int] = set()  # segments this session cannot complete
+        client.listeners.append(self._on_message)
+
+    # -- what arrives
+
+    def _on_message(self, client: ViserClient, m: dict[str, Any], now: float) -> None:
+        if not client.replayed:  # the connect replay: the state found, not anyone's action
+            return
+        name, kind = m.get("name"), m.get("type", "")
+        if isinstance(name, str) and "props" in m:
+            if match := FAST_MESH.match(name):
+                self._result("click", int(match.group(1)), name, now)
+            elif match := GRASPS.match(name):
+                self._result("plan", int(match.group(1)), name, now)
+        elif kind == "NotificationShowMessage":
+            p = m.get("props", {})
+            if not p.get("loading"):
+                self._notification(p.get("title", ""), p.get("body", ""), p.get("color"), now)
+
+    def _resolve(self, outcome: str, now: float, detail: str = "") -> None:
+        p = self.pending
+        if p is not None and not p.future.done():
+            p.future.set_result((outcome, (p.first_result or now) - p.t0, detail))
+
+    def _result(self, kind: str, sid: int, name: str, now: float) -> None:
+        p = self.pending
+        if p is not None and p.kind == kind == "click" and p.segment == sid:
+            self._resolve("ok", now)
+        elif p is not None and p.kind == "plan" and kind == "click" and p.segment == sid:
+            pass  # planning made the segment's mesh first: part of this session's own plan
+        elif p is not None and p.kind == kind == "plan":
+            # Timed at the grasps' first node; ended by the notification that follows the last hand
+            # (clicking on before the hands have arrived could hit one: the viewer would select it).
+            if p.first_result is None:
+                p.first_result = now
+            if sid != p.segment:  # the plan ran on another segment than this session's selection
+                self.stats.wrong.append(f"{name} for a plan on seg_{p.segment}")
+                self._resolve("wrong segment", now, name)
+        elif sid in self.timed_out[kind]:
+            self.timed_out[kind].discard(sid)
+            self.stats.late += 1
+        else:
+            self.stats.wrong.append(name)
+            if p is not None:
+                p.foreign_seen = True
+
+    def _notification(self, title: str, body: str, color: Any, now: float) -> None:
+        red = color == "red"
+        if red:
+            self.stats.red.append(f"{title}: {body}")
+        p = self.pending
+        outcome = None
+        if title == BUSY:
+            outcome = "refused"
+        elif red:
+            outcome = "error"
+        elif p is not None and p.kind == "click" and title == MISSED:
+            outcome = "missed"
+        elif p is not None and p.kind == "click" and title == EMPTY:
+            outcome = "empty"
+        elif p is not None and p.kind == "plan" and title in PLAN_DONE:
+            outcome = PLAN_DONE[title]
+        elif p is not None and p.kind == "plan" and title in PLAN_LOST:
+            outcome = "error"
+        if outcome is None:
+            return
+        if p is not None and not p.future.done():
+            self._resolve(outcome, now, f"{title}: {body}")
+        elif outcome in ERROR_KINDS:
+            self.stats.unattributed[outcome] += 1
+            self.stats.details.append(f"while idle: {title}: {body}")
+
+    # -- what it does
+
+    def segments(self) -> dict[int, np.ndarray]:
+        """The segments this session was sent: id -> world points."""
+        out = {}
+        for name in list(self.client.nodes):
+            match = SEGMENT.match(name)
+            if match:
+                pts = self.client.world_points(name)
+                if pts is not None and len(pts):
+                    out[int(match.group(1))] = pts
+        return out
+
+    def hands(self) -> dict[str, np.ndarray]:
+        """Points along the grasp hands' stick figures this session was sent (clicks pick them)."""
+        out = {}
+        for name in list(self.client.nodes):
+            if HAND_STICKS.match(name):
+                pts = self.client.world_points(name)
+                if pts is not None and len(pts):
+                    out[name] = rays.sample_segments(pts.reshape(-1, 2, 3), HAND_PICK_SPACING)
+        return out
+
+    def camera_position(self) -> np.ndarray | None:
+        return self.client.camera_position()
+
+    def aim(self, sid: int, points: np.ndarray, everything: dict, origin: np.ndarray) -> np.ndarray | None:
+        """A point of segment ``sid`` that a click from ``origin`` picks (the viewer's own test:
+        the segment is the first thing along the ray), or None: the centroid, else other points."""
+        candidates = [points.mean(axis=0)]
+        candidates += [points[i] for i in self.rng.sample(range(len(points)), min(24, len(points)))]
+        for target in candidates:
+            o, d = rays.ray_through(origin, target)
+            if rays.first_hit(o, d, everything)[0] == ("segment", sid) and self.on_screen(target):
+                return target
+        return None
+
+    def on_screen(self, target: np.ndarray) -> bool:
+        return True
+
+    def choose(self) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """``(segment, ray origin, target point)`` of a segment to click, or None."""
+        origin = self.camera_position()
+        if origin is None:
+            return None
+        segments = {sid: pts for sid, pts in self.segments().items() if sid not in self.empty}
+        everything: dict[Any, np.ndarray] = {("segment", sid): pts for sid, pts in segments.items()}
+        everything.update({("hand", name): pts for name, pts in self.hands().items()})
+        order = list(segments)
+        self.rng.shuffle(order)
+        for sid in order:
+            target = self.aim(sid, segments[sid], everything, origin)
+            if target is not None:
+                return sid, origin, target
+        return None
+
+    async def ready(self, timeout: float) -> bool:
+        """Wait until the session has its camera and segments (and, for a planner, the button)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.client.error is not None or self.client.closed.is_set():
+                break
+            if (
+                self.client.replayed
+                and self.camera_position() is not None
+                and self.segments()
+                and (not self.planner or self.client.find_gui(PLAN_BUTTON) is not None)
+            ):
+                return True
+            await asyncio.sleep(0.1)
+        return False
+
+    async def send_click(self, origin: np.ndarray, target: np.ndarray) -> None:
+        await self.client.click(*rays.ray_through(origin, target))
+
+    async def press(self, uuid: str) -> None:
+        await self.client.press(uuid)
+
+    async def _act(self, kind: str, sid: int, send, timeout: float) -> tuple[str, float, str]:
+        loop = asyncio.get_running_loop()
+        self.pending = p = Pending(kind, sid, time.perf_counter(), loop.create_future())
+        try:
+            await send()
+            outcome, seconds, detail = await asyncio.wait_for(asyncio.shield(p.future), timeout)
+        except TimeoutError:
+            outcome, seconds, detail = "timeout", time.perf_counter() - p.t0, f"no result within {timeout:.0f} s"
+            self.timed_out[kind].add(sid)
+        except ConnectionError as e:
+            outcome, seconds, detail = "error", time.perf_counter() - p.t0, str(e)
+        finally:
+            self.pending = None
+        self.stats.outcomes[f"{kind} {outcome}"] += 1
+        self.stats.disturbed += p.foreign_seen
+        if outcome != "ok":
+            self.stats.details.append(f"{kind} seg_{sid}: {outcome} after {seconds:.1f} s {detail}".rstrip())
+        return outcome, seconds, detail
+
+    async def click_segment(self) -> int | None:
+        """Click a segment and wait for its fast mesh; the segment on success, else None."""
+        choice = self.choose()
+        if choice is None:
+            self.stats.outcomes["click not ready"] += 1
+            self.stats.details.append("no segment to click is in view")
+            await asyncio.sleep(1.0)
+            return None
+        sid, origin, target = choice
+        self.stats.clicks += 1
+        outcome, seconds, _ = await self._act("click", sid, lambda: self.send_click(origin, target), self.args.timeout)
+        if outcome == "ok":
+            self.stats.click_seconds.append(seconds)
+            return sid
+        if outcome == "empty":
+            self.empty.add(sid)
+        return None
+
+    async def plan(self, sid: int) -> None:
+        """Press "Plan grasps" (once it is enabled) and wait for the grasps of ``sid``."""
+        uuid = self.client.find_gui(PLAN_BUTTON)
+        deadline = time.monotonic() + self.args.plan_timeout
+        while uuid is not None and self.client.gui[uuid].disabled and time.monotonic() < deadline:
+            await asyncio.sleep(0.2)
+            uuid = self.client.find_gui(PLAN_BUTTON)
+        if uuid is None or self.client.gui[uuid].disabled:
+            self.stats.outcomes["plan refused"] += 1
+            self.stats.details.append(f"plan seg_{sid}: the {PLAN_BUTTON!r} button is missing or stays disabled")
+            return
+        self.stats.plans += 1
+        outcome, seconds, _ = await self._act("plan", sid, lambda: self.press(uuid), self.args.plan_timeout)
+        if outcome in ("ok", "no grasp"):
+            self.stats.plan_seconds.append(seconds)
+
+    async def work(self, deadline: float) -> None:
+        """Act until ``deadline`` (perf_counter)."""
+        while time.perf_counter() < deadline and not self.client.closed.is_set():
+            sid = await self.click_segment()
+            if self.planner and sid is not None and time.perf_counter() < deadline:
+                await self.plan(sid)
+            await asyncio.sleep(self.args.pause * self.rng.uniform(0.5, 1.5))
+
+
+class BrowserSession(Session):
+    """A real headless Chromium: clicks on its canvas where it draws the segment; what its page's
+    websocket receives (seen through Playwright) feeds a passive :class:`ViserClient`."""
+
+    kind = "browser"
+
+    def __init__(self, name: str, url: str, rng: random.Random, args) -> None:
+        super().__init__(name, ViserClient(url, name, passive=True), False, rng, args)
+        self.url = url
+        self.page: Any = None
+        self.camera: dict[str, Any] | None = None  # the browser's last ViewerCameraMessage
+        self.box: dict[str, float] | None = None  # the canvas on the page
+        self._xy: tuple[float, float] | None = None
+
+    async def open(self, playwright) -> None:
+        sys.path.insert(0, str(ROOT / "tests"))
+        from helpers import CHROMIUM, CHROMIUM_ARGS  # tests/helpers.py
+
+        self.browser = await playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        self.page = await self.browser.new_page(viewport={"width": 1280, "height": 800})
+        self.page.on("websocket", self._on_websocket)
+        self.client.connected.set()
+        await self.page.goto(self.url)
+        await self.page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=60_000)
+        canvas = self.page.locator("canvas").first
+        await canvas.wait_for(state="visible", timeout=60_000)
+        self.box = await canvas.bounding_box()
+
+    async def close(self) -> None:
+        if self.page is not None:
+            await self.browser.close()
+        self.client.closed.set()
+
+    def _on_websocket(self, ws) -> None:
+        import msgspec
+
+        def received(payload) -> None:
+            if isinstance(payload, bytes):
+                self.client.feed(payload, time.perf_counter())
+
+        def sent(payload) -> None:
+            if isinstance(payload, bytes):
+                try:
+                    m = msgspec.msgpack.decode(payload)
+                except msgspec.DecodeError:
+                    return
+                if isinstance(m, dict) and m.get("type") == "ViewerCameraMessage":
+                    self.camera = m
+
+        ws.on("framereceived", received)
+        ws.on("framesent", sent)
+
+    def camera_position(self) -> np.ndarray | None:
+        return None if self.camera is None else np.asarray(self.camera["position"], dtype=float)
+
+    def on_screen(self, target: np.ndarray) -> bool:
+        """Whether ``target`` is drawn inside the canvas (not under the docked panel); remembers the pixel."""
+        cam, box = self.camera, self.box
+        if cam is None or box is None:
+            return False
+        R = viser.transforms.SO3(np.asarray(cam["wxyz"])).as_matrix()
+        w, h = cam["image_width"], cam["image_height"]
+        u, v = rays.project_to_pixels(np.asarray(target)[None], np.asarray(cam["position"]), R, cam["fov"], w, h)[0]
+        if not (np.isfinite(u) and np.isfinite(v) and 2 <= u < w - 2 and 2 <= v < h - 2):
+            return False
+        self._xy = (box["x"] + u * box["width"] / w, box["y"] + v * box["height"] / h)
+        return True
+
+    async def send_click(self, origin: np.ndarray, target: np.ndarray) -> None:
+        self.on_screen(target)
+        assert self._xy is not None
+        hit = await self.page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", list(self._xy))
+        if hit != "CANVAS":
+            self.stats.details.append(f"the click point is covered by a {hit}")
+        await self.page.mouse.click(*self._xy)
+
+
+# ----------------------------------------------------------------------------------------------
+# A run
+
+
+async def warm_up(url: str, args) -> Stats:
+    """One session that clicks one segment (and plans grasps on it when sessions will) and leaves:
+    the server's first CNN call, first mesh and first plan allocate what stays allocated (models,
+    hands, caches), so the memory baseline is taken after it."""
+    client = ViserClient(url, "warm-up")
+    task = asyncio.create_task(client.run())
+    session = Session("warm-up", client, args.planners > 0, random.Random(args.seed), args)
+    try:
+        if await session.ready(args.setup_timeout):
+            sid = await session.click_segment()
+            if session.planner and sid is not None:
+                await session.plan(sid)
+    finally:
+        await client.close()
+        await asyncio.wait_for(task, 10)
+    return session.stats
+
+
+async def run_sessions(url: str, args) -> tuple[list[Stats], dict[str, Any]]:
+    sessions: list[Session] = []
+    tasks = []
+    for i in range(args.sessions):
+        client = ViserClient(url, f"s{i + 1}")
+        tasks.append(asyncio.create_task(client.run()))
+        sessions.append(Session(client.name, client, i < args.planners, random.Random(args.seed + i + 1), args))
+    browser_cm = None
+    if args.browser:
+        from playwright.async_api import async_playwright
+
+        browser_cm = async_playwright()
+        playwright = await browser_cm.__aenter__()
+        b = BrowserSession("browser", url, random.Random(args.seed + 1000), args)
+        sessions.append(b)
+    info: dict[str, Any] = {}
+    try:
+        if args.browser:
+            await b.open(playwright)
+        ready = await asyncio.gather(*(s.ready(args.setup_timeout) for s in sessions))
+        for s, ok in zip(sessions, ready):
+            if not ok:
+                s.stats.outcomes["click not ready"] += 1
+                error = s.client.error
+                why = f": {type(error).__name__}: {error}" if error else ""
+                s.stats.details.append(f"not ready within {args.setup_timeout:.0f} s{why}")
+        t0 = time.perf_counter()
+        deadline = t0 + 60.0 * args.minutes
+        info["load_average_start"] = os.getloadavg()[0]
+        await asyncio.gather(*(s.work(deadline) for s, ok in zip(sessions, ready) if ok))
+        info["seconds"] = time.perf_counter() - t0
+        info["load_average_end"] = os.getloadavg()[0]
+        info["bytes_received"] = sum(s.client.bytes for s in sessions)
+    finally:
+        for s in sessions:
+            if isinstance(s, BrowserSession):
+                await s.close()
+            else:
+                await s.client.close()
+        await asyncio.wait(tasks, timeout=10)
+        if browser_cm is not None:
+            await browser_cm.__aexit__(None, None, None)
+    return [s.stats for s in sessions], info
+
+
+def percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+def fmt_s(v: float) -> str:
+    return "n/a" if not np.isfinite(v) else f"{v:.2f} s" if v < 10 else f"{v:.0f} s"
+
+
+def fmt_mb(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:,.0f} MB"
+
+
+def summarize(stats: list[Stats], memory: dict[str, Any], info: dict[str, Any], args, url: str) -> dict[str, Any]:
+    light = [s for s in stats if s.kind == "lightweight"]
+    outcomes: Counter = Counter()
+    unattributed: Counter = Counter()
+    for s in stats:
+        outcomes.update(s.outcomes)
+        unattributed.update(s.unattributed)
+    click_light = [x for s in light for x in s.click_seconds]
+    click_browser = [x for s in stats if s.kind == "browser" for x in s.click_seconds]
+    plans = [x for s in stats for x in s.plan_seconds]
+    errors = sum(s.errors for s in stats) + info.get("server_tracebacks", 0)
+    wrong = sum(len(s.wrong) for s in stats)
+    by_kind = Counter()
+    for k, n in outcomes.items():
+        by_kind[k.split(" ", 1)[1]] += n
+    for k, n in unattributed.items():
+        by_kind[k] += n
+    p95 = percentile(click_light, 95)
+    base, after = memory.get("baseline"), memory.get("after")
+    mem_ok = None
+    if base is not None and after is not None:
+        mem_ok = after <= base + max(MEMORY_TOLERANCE[0] * base, MEMORY_TOLERANCE[1])
+    targets = {
+        "errors": {"value": errors, "target": 0, "ok": errors == 0},
+        "wrong_session_results": {"value": wrong, "target": 0, "ok": wrong == 0},
+        "click_to_own_fast_mesh_p95_s": {
+            "value": p95,
+            "target": TARGET_P95,
+            "ok": bool(click_light) and p95 <= TARGET_P95,
+        },
+        "memory_after_vs_baseline": {"value": memory, "target": "back to baseline", "ok": mem_ok},
+    }
+    return {
+        "url": url,
+        "config": {k: v for k, v in vars(args).items() if k != "json"},
+        "info": info,
+        "sessions": [s.as_dict() for s in stats],
+        "totals": {
+            "actions": sum(s.clicks + s.plans for s in stats),
+            "clicks": sum(s.clicks for s in stats),
+            "plans": sum(s.plans for s in stats),
+            "outcomes": dict(outcomes),
+            "errors": errors,
+            "errors_by_kind": dict(by_kind),
+            "wrong_session_results": wrong,
+            "actions_disturbed": sum(s.disturbed for s in stats),
+            "late_results": sum(s.late for s in stats),
+            "red_notifications": sum(len(s.red) for s in stats),
+            "click_to_own_fast_mesh_s": {
+                "lightweight": {
+                    "n": len(click_light),
+                    "p50": percentile(click_light, 50),
+                    "p95": p95,
+                    "max": max(click_light, default=float("nan")),
+                },
+                "browser": {
+                    "n": len(click_browser),
+                    "p50": percentile(click_browser, 50),
+                    "p95": percentile(click_browser, 95),
+                    "max": max(click_browser, default=float("nan")),
+                },
+            },
+            "plan_to_own_grasps_s": {
+                "n": len(plans),
+                "p50": percentile(plans, 50),
+                "max": max(plans, default=float("nan")),
+            },
+        },
+        "memory_mb": memory,
+        "targets": targets,
+    }
+
+
+def markdown(r: dict[str, Any]) -> str:
+    t, c, mem, tg = r["totals"], r["config"], r["memory_mb"], r["targets"]
+
+    def verdict(key: str) -> str:
+        ok = tg[key]["ok"]
+        return "n/a" if ok is None else "ok" if ok else "**MISSED**"
+
+    n_light = c["sessions"]
+    planners = min(c["planners"], n_light)
+    kinds = t["errors_by_kind"]
+    error_parts = [f"{kinds.get(k, 0)} {k}" for k in ("timeout", "refused", "error", "missed", "not ready")]
+    if r["info"].get("server_tracebacks"):
+        error_parts.append(f"{r['info']['server_tracebacks']} tracebacks in the server's log")
+    light, browser, plans = (
+        t["click_to_own_fast_mesh_s"]["lightweight"],
+        t["click_to_own_fast_mesh_s"]["browser"],
+        t["plan_to_own_grasps_s"],
+    )
+    lines = [
+        f"## Load: {n_light} lightweight session{'s' if n_light != 1 else ''} ({planners} planning grasps)"
+        + (" + 1 browser" if c["browser"] else "")
+        + f" x {c['minutes']:g} min on {r['url']}",
+        "",
+        f"{os.cpu_count()} CPUs; load average {r['info'].get('load_average_start', float('nan')):.1f} at the start, "
+        f"{r['info'].get('load_average_end', float('nan')):.1f} at the end; "
+        f"{r['info'].get('bytes_received', 0) / 1e6:,.0f} MB received by the sessions.",
+        "",
+        "| figure | measured | target | |",
+        "|---|---|---|---|",
+        f"| sessions | {n_light} lightweight" + (" + 1 browser" if c["browser"] else "") + " | | |",
+        f"| actions | {t['actions']}: {t['clicks']} segment clicks, {t['plans']} grasp plans | | |",
+        f"| errors | {t['errors']}: " + ", ".join(error_parts) + f" | 0 | {verdict('errors')} |",
+        f"| results shown in the wrong session | {t['wrong_session_results']} (in {t['actions_disturbed']} actions "
+        f"another session's result arrived while waiting) | 0 | {verdict('wrong_session_results')} |",
+        f"| click -> own fast mesh received, lightweight (n={light['n']}) | p50 {fmt_s(light['p50'])}, "
+        f"p95 {fmt_s(light['p95'])}, max {fmt_s(light['max'])} | p95 <= {TARGET_P95} s "
+        f"| {verdict('click_to_own_fast_mesh_p95_s')} |",
+    ]
+    if c["browser"]:
+        lines.append(
+            f"| click -> own fast mesh received, browser (n={browser['n']}) | p50 {fmt_s(browser['p50'])}, "
+            f"p95 {fmt_s(browser['p95'])}, max {fmt_s(browser['max'])} | | |"
+        )
+    lines += [
+        f"| Plan grasps -> own grasps received (n={plans['n']}) | p50 {fmt_s(plans['p50'])}, "
+        f"max {fmt_s(plans['max'])} | | |",
+        f"| server memory (RSS) | start {fmt_mb(mem.get('start'))}, baseline {fmt_mb(mem.get('baseline'))} "
+        f"(after the warm-up session), peak {fmt_mb(mem.get('peak'))}, "
+        f"after {fmt_mb(mem.get('after'))} ({c['settle']:g} s after all closed) "
+        f"| back to baseline (+{MEMORY_TOLERANCE[0]:.0%} / {MEMORY_TOLERANCE[1]:.0f} MB) "
+        f"| {verdict('memory_after_vs_baseline')} |",
+    ]
+    if r["info"].get("server_stop_seconds") is not None:
+        lines.append(f"| server stopped after Ctrl-C (SIGINT) in | {r['info']['server_stop_seconds']:.1f} s | | |")
+    lines += [
+        "",
+        "| session | clicks | plans | errors | wrong-session results | click -> mesh p50 / p95 / max | outcomes |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in r["sessions"]:
+        x = s["click_to_own_fast_mesh_s"]
+        lines.append(
+            f"| {s['name']} ({s['kind']}{', plans' if s['planner'] else ''}) | {s['clicks']} | {s['plans']} "
+            f"| {s['errors']} | {s['wrong_session_results']} "
+            f"| {fmt_s(percentile(x, 50))} / {fmt_s(percentile(x, 95))} / {fmt_s(max(x, default=float('nan')))} "
+            f"| {', '.join(f'{k}: {n}' for k, n in sorted(s['outcomes'].items()))} |"
+        )
+    red = [m for s in r["sessions"] for m in s["red_notifications"]]
+    if red:
+        lines += ["", f"Red notifications ({len(red)}): " + "; ".join(sorted(set(red))[:5])]
+    other = [f"{s['name']}: {d}" for s in r["sessions"] for d in s["details"] if "Busy" not in d]
+    if other:
+        lines += ["", "Other errors (first 5): " + "; ".join(other[:5])]
+    return "\n".join(lines)
+
+
+async def main_async(args) -> dict[str, Any]:
+    server = None
+    url = args.url
+    pid = args.pid
+    memory: dict[str, Any] = {}
+    info: dict[str, Any] = {}
+    try:
+        if url is None:
+            port = args.port or free_port()
+            app = args.app_root.resolve() / "app.py"
+            print(f"starting the server: python {app} --port {port} {args.server_args}".rstrip(), file=sys.stderr)
+            server = Server(port, shlex.split(args.server_args), args.app_root.resolve())
+            url, pid = await asyncio.to_thread(server.wait_ready, args.startup_timeout), server.pid
+        watch = MemoryWatch(pid)
+        memory["start"] = watch.now()
+        if args.warmup:
+            print("warm-up session ...", file=sys.stderr)
+            w = await warm_up(url, args)
+            info["warm_up"] = dict(w.outcomes)
+        await asyncio.sleep(args.settle)
+        memory["baseline"] = watch.now()
+        watch.reset_peak()
+        watch.start()
+        print(f"{args.sessions} sessions for {args.minutes:g} min on {url} ...", file=sys.stderr)
+        stats, run_info = await run_sessions(url, args)
+        info.update(run_info)
+        await asyncio.sleep(args.settle)
+        watch.stop()
+        memory["peak"] = watch.peak
+        memory["after"] = watch.now()
+        if server is not None:
+            info["server_tracebacks"] = server.tracebacks()
+    finally:
+        if server is not None:
+            server.stop()  # blocking: also when the run is interrupted
+            info["server_stop_seconds"] = server.stop_seconds
+            print(f"server log: {server.log}", file=sys.stderr)
+    return summarize(stats, memory, info, args, url)
+
+
+def _plain(value: Any) -> Any:
+    """``value`` for JSON: numpy numbers as Python ones, NaN as null."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sessions", type=int, default=5, help="lightweight sessions")
+    ap.add_argument("--minutes", type=float, default=2.0, help="how long the sessions act")
+    ap.add_argument("--planners", type=int, default=1, help="how many of the sessions also plan grasps")
+    ap.add_argument("--browser", action="store_true", help="one more session: headless Chromium (Playwright)")
+    ap.add_argument("--pause", type=float, default=0.5, help="mean pause between a session's actions (s)")
+    ap.add_argument("--timeout", type=float, default=30.0, help="wait at most this long for a fast mesh (s)")
+    ap.add_argument("--plan-timeout", type=float, default=180.0, help="wait at most this long for grasps (s)")
+    ap.add_argument("--setup-timeout", type=float, default=120.0, help="wait this long for a session's scene (s)")
+    ap.add_argument("--settle", type=float, default=5.0, help="wait before reading memory at rest (s)")
+    ap.add_argument("--no-warmup", dest="warmup", action="store_false", help="no warm-up session first")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the sessions' choices")
+    ap.add_argument("--port", type=int, default=None, help="the server's port (default: a free one)")
+    ap.add_argument("--server-args", default="", help="more arguments for app.py, e.g. '--seed 3'")
+    ap.add_argument("--app-root", type=Path, default=ROOT, help="checkout whose app.py to serve (default: this)")
+    ap.add_argument("--startup-timeout", type=float, default=300.0, help="wait this long for the server (s)")
+    ap.add_argument("--url", default=None, help="use this running server instead of starting one")
+    ap.add_argument("--pid", type=int, default=None, help="with --url: the server's process id (for its memory)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    args = ap.parse_args(argv)
+    if args.sessions < 1 or args.minutes <= 0:
+        ap.error("--sessions must be >= 1 and --minutes > 0")
+
+    result = asyncio.run(main_async(args))
+    print(markdown(result))
+    if args.json is not None:
+        args.json.write_text(json.dumps(_plain(result), indent=2))
+    return 0 if all(v["ok"] is not False for v in result["targets"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
