@@ -259,6 +259,8 @@ class Session:
         self.pending: Pending | None = None
         self.timed_out: dict[str, set[int]] = {"click": set(), "plan": set()}
         self.empty: set[int] = set()  # segments this session cannot complete
+        # The segment whose grasps the session's Grasps folder lists: only its hands take clicks.
+        self.listed: int | None = None
         client.listeners.append(self._on_message)
 
     # -- what arrives
@@ -344,10 +346,13 @@ class Session:
         return out
 
     def hands(self) -> dict[str, np.ndarray]:
-        """Points along the grasp hands' stick figures this session was sent (clicks pick them)."""
-        out = {}
+        """Points along the stick figures of the listed segment's grasp hands (the viewer picks
+        those, not the hands of other segments' grasps)."""
+        out: dict[str, np.ndarray] = {}
+        if self.listed is None:
+            return out
         for name in list(self.client.nodes):
-            if HAND_STICKS.match(name):
+            if HAND_STICKS.match(name) and name.startswith(f"/grasps/seg_{self.listed}/"):
                 pts = self.client.world_points(name)
                 if pts is not None and len(pts):
                     out[name] = rays.sample_segments(pts.reshape(-1, 2, 3), HAND_PICK_SPACING)
@@ -440,6 +445,8 @@ class Session:
         outcome, seconds, _ = await self._act("click", sid, lambda: self.send_click(origin, target), self.args.timeout)
         if outcome == "ok":
             self.stats.click_seconds.append(seconds)
+            if f"/grasps/seg_{sid}" in self.client.nodes:  # the viewer lists a segment's grasps when it is picked
+                self.listed = sid
             return sid
         if outcome == "empty":
             self.empty.add(sid)
@@ -460,6 +467,8 @@ class Session:
         outcome, seconds, _ = await self._act("plan", sid, lambda: self.press(uuid), self.args.plan_timeout)
         if outcome in ("ok", "no grasp"):
             self.stats.plan_seconds.append(seconds)
+        if outcome == "ok":
+            self.listed = sid
 
     async def work(self, deadline: float) -> None:
         """Act until ``deadline`` (perf_counter)."""

@@ -86,12 +86,14 @@ def test_complete_segment_adds_grids_and_mesh(app):
 def test_complete_all_is_one_batch(app):
     import threading
 
-    # A spy on the network's forward pass (the real one still runs). Only this thread's calls count:
-    # the Dataset tab may be building its sample store with the same network in the background.
-    me = threading.get_ident()
+    # A spy on the network's forward pass (the real one still runs). Only the viewer's job workers'
+    # calls count: the Dataset tab may be building its sample store with the same network meanwhile.
+    def job_worker() -> bool:
+        return threading.current_thread().name.startswith("viewer-job")
+
     batches: list[int] = []
     hook = app.res.completer.net.register_forward_hook(
-        lambda _net, args, _out: batches.append(len(args[0])) if threading.get_ident() == me else None
+        lambda _net, args, _out: batches.append(len(args[0])) if job_worker() else None
     )
     try:
         done = app.complete_all()

@@ -3,9 +3,10 @@ session, the status line's idle text and downloads.
 
 viser runs plain ``def`` GUI callbacks in its own thread pool, so jobs of several browsers (and two
 clicks of one) arrive at once. Each session's :class:`JobQueue` runs its jobs one at a time, in
-the caller's thread, holding one of the :class:`WorkerPool`'s slots while it computes: at most
-``workers`` jobs compute at once whoever started them, one user's job never refuses another
-user's click (it waits for a slot), and a session with too many jobs waiting is told at once.
+the caller's thread, and hands their computations (the CNN, meshing, segmenting a capture) to
+the :class:`WorkerPool`: at most ``workers`` computations run at once whoever started them, one
+user's job never refuses another user's click (it waits its turn in the pool), and a session with
+too many jobs waiting is told at once.
 """
 
 from __future__ import annotations
@@ -14,10 +15,13 @@ import contextlib
 import logging
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
 
 import viser
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 READY = "Ready. Click a segment to complete it."
 # notify(client, title, body, color=None, auto_close=8.0): tell a browser (see Audience.notify).
@@ -26,30 +30,38 @@ WAIT_STEP = 0.05  # seconds between looks at a closed session while a job waits
 
 
 class WorkerPool:
-    """At most ``workers`` jobs of all sessions compute at once (the model and the meshers are
-    CPU-bound: more at once would only slow each one down)."""
+    """A fixed set of ``workers`` threads that run the sessions' computations: at most that many
+    compute at once, whoever asked (the model and the meshers are CPU-bound: more at once would
+    only slow each one down), and the per-thread state of torch and the C allocator stays bounded
+    however many browsers come and go."""
 
-    def __init__(self, workers: int = 2) -> None:
+    def __init__(self, workers: int = 2, name: str = "viewer-job") -> None:
         if workers < 1:
             raise ValueError(f"a worker pool needs at least one worker, not {workers}")
         self.workers = workers
-        self._slots = threading.BoundedSemaphore(workers)
+        self._executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=name)
+        self._count = threading.Lock()
+        self._submitted = 0  # running + queued
 
-    @contextlib.contextmanager
-    def slot(self, cancelled: Callable[[], bool], waiting: Callable[[], None] | None = None) -> Iterator[bool]:
-        """Yields True holding a slot, or False when ``cancelled()`` turned true while waiting;
-        ``waiting`` is called once when no slot is free at first."""
-        if not self._slots.acquire(blocking=False):
-            if waiting is not None:
-                waiting()
-            while not self._slots.acquire(timeout=WAIT_STEP):
-                if cancelled():
-                    yield False
-                    return
+    @property
+    def full(self) -> bool:
+        """Whether every worker is busy (new work waits)."""
+        return self._submitted >= self.workers
+
+    def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """``fn(*args, **kwargs)`` computed in a worker (after the work queued before it); returns
+        or raises what it does."""
+        with self._count:
+            self._submitted += 1
         try:
-            yield True
+            return self._executor.submit(fn, *args, **kwargs).result()
         finally:
-            self._slots.release()
+            with self._count:
+                self._submitted -= 1
+
+    def shutdown(self) -> None:
+        """Drop queued work; the running ones finish in the background."""
+        self._executor.shutdown(wait=False, cancel_futures=True)
 
 
 def send_download(
@@ -70,11 +82,11 @@ def send_download(
 
 
 class JobQueue:
-    """One session's jobs: run one at a time, in the shared :class:`WorkerPool`; the buttons that
-    start jobs are disabled while one runs (a double click would only queue a second job).
+    """One session's jobs, run one at a time in order (each computes in the shared
+    :class:`WorkerPool`); the buttons that start jobs are disabled while one runs (a double click
+    would only queue a second job).
 
     Args:
-        pool: the server's worker pool.
         buttons: the session's job buttons.
         notify: tells the session's browser that its queue is full.
         max_waiting: jobs that may wait behind the running one; more are refused at once.
@@ -82,12 +94,10 @@ class JobQueue:
 
     def __init__(
         self,
-        pool: WorkerPool,
         buttons: tuple[viser.GuiButtonHandle, ...],
         notify: Notify,
         max_waiting: int = 2,
     ) -> None:
-        self.pool = pool
         self.buttons = buttons
         self.notify = notify
         self.max_waiting = max_waiting
@@ -126,8 +136,8 @@ class JobQueue:
             yield False
             return
         try:
-            with self._wait_turn() as mine, self.pool.slot(self.closed.is_set) as computing:
-                if not (mine and computing):
+            with self._wait_turn() as mine:
+                if not mine:
                     yield False
                     return
                 self._set_buttons(disabled=True)

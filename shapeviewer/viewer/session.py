@@ -120,7 +120,7 @@ class Session:
             files = None if res.data_dir is None else sources.data_files(res.data_dir)
             self.panel = P.build_panel(gui, seed, files)
         self.drawing = PipelineDrawing(audience, res.max_cloud_points)
-        self.jobs = JobQueue(res.pool, self.panel.job_buttons, self.notify)
+        self.jobs = JobQueue(self.panel.job_buttons, self.notify)
         host_api = GraspHost(
             scene=lambda: self.scene,
             selected_segment=lambda: self.selected,
@@ -432,7 +432,8 @@ class Session:
         what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
         self.panel.status.content = f"_Completing {what}..._"
         try:
-            done = complete_points(
+            done = self.res.pool.run(
+                complete_points,
                 [p for _, p in usable],
                 self.res.completer,
                 [sid for sid, _ in usable],
@@ -471,7 +472,7 @@ class Session:
         steps: dict[str, float] = {}
         try:
             t0 = time.perf_counter()
-            mesh = make_mesh(kind, c, scene, steps)
+            mesh = self.res.pool.run(make_mesh, kind, c, scene, steps)
             seconds = time.perf_counter() - t0
             t0 = time.perf_counter()
             self.drawing.draw_mesh(scene, kind, sid, mesh)
@@ -506,7 +507,7 @@ class Session:
         """The Confidence layer of ``c`` and its figures in the stage panel; the 8 sample
         completions it needs (about 8 CNN passes) are made on first use."""
         if c.samples is None:
-            c.samples = self.res.completer.predict_samples(c.grid_in, 8, context=c.context)
+            c.samples = self.res.pool.run(self.res.completer.predict_samples, c.grid_in, 8, context=c.context)
         spread = c.spread
         assert spread is not None and self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
@@ -528,7 +529,7 @@ class Session:
                 return False
             notes = self.audience.loading(client, f"Loading {what}...")
             try:
-                decimated = self._set_scene(make(), require_segment=True)
+                decimated = self._set_scene(self.res.pool.run(make), require_segment=True)
                 if decimated is not None:
                     self.notify(client, "Large capture", decimated, "yellow")
                 return True
@@ -547,7 +548,7 @@ class Session:
         ``require_segment``: see :func:`~.state.load_scene`. Returns a note for the user when the
         capture was decimated (see :func:`~shapeviewer.capture.decimate`), else None.
         """
-        scene = source if isinstance(source, LoadedScene) else load_scene(source, require_segment)
+        scene = source if isinstance(source, LoadedScene) else self.res.pool.run(load_scene, source, require_segment)
         capture = scene.capture
         if self.dataset is not None:
             self.dataset.leave()  # a new scene is what the user wants to see

@@ -59,10 +59,9 @@ class GraspJobs:
 
         def run() -> None:
             try:
-                waiting = lambda: self.set_status("_Grasps: waiting for a free worker (others are planning)..._")  # noqa: E731
-                with self.pool.slot(job.cancel_event.is_set, waiting) as computing:
-                    if computing:
-                        job.result = work(job)
+                if self.pool.full:
+                    self.set_status("_Grasps: waiting for a free worker (others are planning)..._")
+                job.result = self.pool.run(work, job)
             except GraspJobError as e:
                 job.error = str(e)
                 if not job.cancel_event.is_set():  # after Cancel (or a new scene) it is no news
