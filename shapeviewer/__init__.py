@@ -27,6 +27,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "plan_grasps": (".grasp.plan", "plan"),
     "execute_grasps": (".grasp.execute", "execute_grasps"),
     "evaluate": (".evaluation.run", "evaluate"),
+    "ViewerApp": ".viewer.app",
 }
 __all__ = sorted(_API)
 

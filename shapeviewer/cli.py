@@ -9,7 +9,8 @@ shapeviewer train --data DIR --run DIR [--steps N]
 shapeviewer evaluate-grids --data DIR [--weights PATH]
 shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
                      [--workers N] [--backend process|ray]
-                     [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]]
+                     [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]
+                               [--robust]]
 """
 
 from __future__ import annotations
@@ -350,6 +351,7 @@ def cmd_evaluate(args) -> int:
             hand=args.hand,
             n_grasps=args.n_grasps,
             budget_seconds=args.grasp_budget,
+            robust=args.robust,
         )
     r = evaluate(
         args.out,
@@ -527,6 +529,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         help="planning time limit per view and method, seconds (default: the full, deterministic search)",
+    )
+    s.add_argument(
+        "--robust",
+        action="store_true",
+        help="with --grasps: also rank the grasps of Ours-fast and Ours-detailed by robustness over the "
+        "CNN's 8 sample completions (Table V's '(robust)' best grasp, the same grasps)",
     )
     s.add_argument(
         "--grasp-methods",

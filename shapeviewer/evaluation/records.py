@@ -6,7 +6,9 @@ Folder layout (relative paths)::
     <root>/meshes/<stem>__truth.ply     ground-truth mesh, camera optical frame, metres
     <root>/meshes/<stem>__points.ply    the partial view (points), camera optical frame, metres
     <root>/meshes/<stem>__<method>.ply  each method's completion, camera optical frame, metres
-    <root>/grasps/<stem>__<method>[__<hand>].json  grasps planned on a completion (:mod:`grasp.serialize`)
+    <root>/meshes/<stem>__samples.npz   the CNN's sample completions (:func:`samples_file`)
+    <root>/grasps/<stem>__<method>[__<hand>].json  grasps planned on a completion (:mod:`grasp.serialize`);
+                                        ranked by robustness too, its ``meta["robustness"]`` (:func:`grasp_rows`)
 
 with ``stem`` from :func:`view_stem`. A view file is either the current format, a dict (see
 :func:`view_record`), or the first format, a bare list of completion rows whose meshes sit at the
@@ -73,6 +75,9 @@ GRASP_ROW_FIELDS = (
     "lift_success",
     "lift_rise_mm",
     "lift_slip_mm",
+    "robust_rank",
+    "robust_fraction",
+    "robust_epsilon_low",
 )
 
 
@@ -89,6 +94,14 @@ def view_file(root: str | Path, name: str, view: int) -> Path:
 def grasp_file(stem: str, method: str, hand: str = "barrett") -> str:
     """Path (relative to the results folder) of a view's grasps for one method and hand."""
     return f"grasps/{stem}__{method}{'' if hand == 'barrett' else '__' + hand}.json"
+
+
+def samples_file(stem: str) -> str:
+    """Path (relative to the results folder) of a view's sample completions: an ``.npz`` of
+    ``samples`` ((8, 40, 40, 40) float32 occupancy probabilities, :meth:`Completer.predict_samples`;
+    sample 0 is the CNN output that Ours-fast meshes) and their grid frame, ``center`` (camera frame,
+    metres) and ``voxel_size`` (metres)."""
+    return f"meshes/{stem}__samples.npz"
 
 
 def mesh_files(root: str | Path, stem: str) -> dict[str, str]:
@@ -230,15 +243,20 @@ def upgrade_old_views(root, views, seed: int) -> None:
             save_view(root, {**parse_view_file(text, root), "seed": int(seed)})
 
 
-def grasp_rows(base: dict, grasps, executions) -> list[dict]:
+def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = None) -> list[dict]:
     """One row (:data:`GRASP_ROW_FIELDS`) per planned grasp and its execution on the true object.
 
-    ``base``: object, view, view_set, method, hand. Units: joint error in degrees (mm for the
-    Panda's prismatic fingers), pose error, lift rise and slip in mm; booleans as 0/1.
+    ``base``: object, view, view_set, method, hand. ``robustness``: per grasp, a grasp file's
+    ``meta["robustness"]`` entry (``{"rank"`` by robustness, 0 first, ``"fraction"`` of sample
+    completions it holds on, ``"epsilon_low"``, ``"epsilons"}``, :mod:`grasp.robust`), or None when
+    the grasps were not ranked by robustness (the robust columns are then NaN). Units: joint error
+    in degrees (mm for the Panda's prismatic fingers), pose error, lift rise and slip in mm;
+    booleans as 0/1.
     """
     rows = []
     for rank, (g, e) in enumerate(zip(grasps, executions)):
         lift = e.lift
+        robust = robustness[rank] if robustness is not None else {}
         rows.append(
             {
                 **base,
@@ -255,6 +273,9 @@ def grasp_rows(base: dict, grasps, executions) -> list[dict]:
                 "lift_success": math.nan if lift is None else float(lift.success),
                 "lift_rise_mm": math.nan if lift is None else 1000.0 * lift.rise,
                 "lift_slip_mm": math.nan if lift is None else 1000.0 * lift.slip,
+                "robust_rank": float(robust.get("rank", math.nan)),
+                "robust_fraction": float(robust.get("fraction", math.nan)),
+                "robust_epsilon_low": float(robust.get("epsilon_low", math.nan)),
             }
         )
     return rows
@@ -278,5 +299,5 @@ def load_grasp_rows(root, records: list[dict]) -> list[dict]:
                 "method": g["method"],
                 "hand": g["hand"],
             }
-            rows += grasp_rows(base, gs.grasps, gs.executions)
+            rows += grasp_rows(base, gs.grasps, gs.executions, gs.meta.get("robustness"))
     return rows

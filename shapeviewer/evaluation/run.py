@@ -20,7 +20,10 @@ Grasps (``grasps=True`` or a :class:`GraspOptions`): for every view and each of 
 methods, up to ``n_grasps`` grasps are planned on the completion (:func:`grasp.plan.plan`) and
 every one is executed on the ground-truth mesh (:func:`grasp.execute.execute_grasps`, the paper's
 protocol, then the dynamic lift test). Planning costs about the same on every mesh, so both of our
-meshes are evaluated; the paper's one "Ours" is compared with Ours-detailed (:mod:`.tables`).
+meshes are evaluated; the paper's one "Ours" is compared with Ours-detailed (:mod:`.tables`). With
+the options' ``robust``, the grasps of our meshes are also ranked by their robustness over the CNN's
+sample completions of the view (:mod:`grasp.robust`), which the completion stage saves: the same
+grasps, executed once, so Table V's best grasp compares the two rankings on the same completions.
 Floating views run without a table in the *evaluation world frame* ``T_WORLD_CAM`` (the body frame
 of a level camera at the origin, so that the lift test's gravity, -z, points down the image);
 tabletop views in the table frame of the plane the segmentation found.
@@ -33,6 +36,7 @@ grasp files, ``rows.csv`` (completion rows), ``grasp_rows.csv`` (one row per exe
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -62,6 +66,7 @@ from .records import (
     grasp_rows,
     load_grasp_rows,
     load_view,
+    samples_file,
     save_view,
     set_grasp_entry,
     upgrade_old_views,
@@ -123,8 +128,16 @@ def evaluate_view(
         if not cnn:
             t0 = time.perf_counter()
             x, frame = partial_to_grid(points)
-            probs = completer.predict(x, context=context_grids(points, frame, support_plane=plane))
+            context = context_grids(points, frame, support_plane=plane)
+            probs = completer.predict(x, context=context)
             cnn.update(probs=probs, frame=frame, seconds=time.perf_counter() - t0)
+            # Not timed: the sample completions are for the grasp stage's robust ranking.
+            np.savez_compressed(
+                Path(out_dir) / samples_file(stem),
+                samples=completer.predict_samples(x, context=context),
+                center=frame.center,
+                voxel_size=frame.voxel_size,
+            )
         return cnn
 
     def ours_fast():
@@ -181,19 +194,22 @@ GRASP_FRAME = (
 )
 TABLE_GRASP_FRAME = "table frame of the segmentation's support plane (z up, table at z = 0)"
 GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
+ROBUST_METHODS = ("Ours-fast", "Ours-detailed")  # the CNN's completions: they have sample completions
 
 
 @dataclass(frozen=True)
 class GraspOptions:
     """The grasp stage of :func:`evaluate`: completion ``methods`` grasped, the ``hand``, grasps
     planned per view and method, the planner's wall-clock ``budget_seconds`` (None: its full
-    deterministic search) and its search sizes (``settings``; None: the planner's defaults)."""
+    deterministic search), its search sizes (``settings``; None: the planner's defaults), and
+    whether the grasps of :data:`ROBUST_METHODS` are also ranked by robustness (``robust``)."""
 
     methods: tuple[str, ...] = GRASP_METHODS
     hand: str = "barrett"
     n_grasps: int = 20
     budget_seconds: float | None = None
     settings: PlanSettings | None = None
+    robust: bool = False
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -252,9 +268,14 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
 
     Both meshes are read from ``out_dir`` (camera frame) and moved to the grasp world of
     :func:`grasp_world`. The grasps, planned and executed, go to ``grasp_file(...)`` with the frame
-    in their ``meta``. Returns the view's entry: ``{"method", "hand", "file", "n", <GRASP_MEANS
-    means>, "lift_success_best", "n_requested", "plan_seed", "seconds_plan", "seconds_execute",
-    "frame", "error"}``; a failure (no mesh, planner error) records ``error`` and NaN means.
+    in their ``meta`` (and, ranked by robustness, ``meta["robustness"]``: :func:`robust_ranking`).
+    Returns the view's entry: ``{"method", "hand", "file", "n", <GRASP_MEANS means>,
+    "lift_success_best", "robust", "lift_success_best_robust", "n_requested", "plan_seed",
+    "seconds_plan", "seconds_execute", "seconds_robust", "frame", "error"}``: ``robust`` says whether
+    the grasps were ranked by robustness (the options ask for it and ``method`` is one of
+    :data:`ROBUST_METHODS`), ``lift_success_best_robust`` whether the grasp ranked first by it lifted
+    the object (0 without grasps, NaN without the ranking). A failure (no mesh, planner error)
+    records ``error`` and NaN means.
     """
     from ..grasp.execute import execute_grasps
     from ..grasp.plan import PlanSettings, plan
@@ -270,10 +291,13 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         "n": 0,
         **grasp_means([]),
         "lift_success_best": math.nan,
+        "robust": options.robust and method in ROBUST_METHODS,
+        "lift_success_best_robust": math.nan,
         "n_requested": int(options.n_grasps),
         "plan_seed": seed,
         "seconds_plan": math.nan,
         "seconds_execute": math.nan,
+        "seconds_robust": math.nan,
         "frame": "evaluation_world",
         "error": "",
     }
@@ -300,6 +324,12 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         t1 = time.perf_counter()
         executions = execute_grasps(result.grasps, truth, table=table, lift=True)
         t2 = time.perf_counter()
+        robustness = (
+            robust_ranking(out / samples_file(view_stem(name, view)), result.grasps, completion, T_world_cam, table)
+            if entry["robust"]
+            else None
+        )
+        t3 = time.perf_counter()
     except Exception as e:  # one mesh the planner cannot handle must not stop the run
         entry["error"] = f"{type(e).__name__}: {e}"
         log.info("%s view %d %s grasps failed:\n%s", name, view, method, traceback.format_exc())
@@ -323,22 +353,50 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
             "cancelled": result.stats.cancelled,
         },
     }
+    if robustness is not None:
+        meta["robustness"] = robustness
     atomic_write(out / rel, grasps_to_json(result.grasps, executions, meta))
     base = {"object": name, "view": view, "view_set": record["view_set"], "method": method, "hand": options.hand}
+    rows = grasp_rows(base, result.grasps, executions, robustness)
     entry.update(
         file=rel,
         n=len(result.grasps),
-        **grasp_means(grasp_rows(base, result.grasps, executions)),
+        **grasp_means(rows),
         seconds_plan=t1 - t0,
         seconds_execute=t2 - t1,
     )
+    if robustness is not None:
+        # As for the planner's best grasp, a view without grasps counts as a failed lift.
+        entry["lift_success_best_robust"] = next((r["lift_success"] for r in rows if r["robust_rank"] == 0), 0.0)
+        entry["seconds_robust"] = t3 - t2
     return entry
 
 
+def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, table: bool) -> list[dict]:
+    """Each grasp's robustness over a view's sample completions (the file ``samples``, see
+    :func:`records.samples_file`, meshed and moved to the grasp world by ``T_world_cam``) and its
+    rank by it (0 first), as a grasp file's ``meta["robustness"]`` (:func:`records.grasp_rows`).
+    ``grasps`` were planned on ``completion`` (the grasp world, metres), on the table if ``table``."""
+    from ..grasp.robust import rank_robust, robustness, sample_meshes
+    from ..voxel import GridFrame
+
+    with np.load(samples) as saved:
+        frame = GridFrame(saved["center"], float(saved["voxel_size"]))
+        meshes = sample_meshes(saved["samples"], frame, T_world_cam)
+    scores = robustness(grasps, meshes, completion, table=table)
+    rank = {i: k for k, i in enumerate(rank_robust(scores))}
+    return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]
+
+
 def pending_grasps(record: dict, options: GraspOptions) -> list[str]:
-    """Methods of ``options`` still to grasp on this view: no entry for (method, hand), or one
-    with an error (retried: it may have been a crash)."""
-    done = {(g["method"], g["hand"]) for g in record.get("grasps", []) if not g["error"]}
+    """Methods of ``options`` still to grasp on this view: no entry for (method, hand), one with an
+    error (retried: it may have been a crash), or, when the options rank by robustness, one of
+    :data:`ROBUST_METHODS` grasped without that ranking."""
+    done = {
+        (g["method"], g["hand"])
+        for g in record.get("grasps", [])
+        if not g["error"] and (g.get("robust", False) or not (options.robust and g["method"] in ROBUST_METHODS))
+    }
     return [m for m in options.methods if (m, options.hand) not in done]
 
 

@@ -95,6 +95,12 @@ def paper_lift(method: str) -> float:
     return _paper_cell(PAPER_LIFT, method)
 
 
+def robust_label(method: str) -> str:
+    """Table V's column of a method's grasps ranked by robustness (:mod:`grasp.robust`); the paper
+    has no such column, so :data:`PAPER_COLUMN` maps none."""
+    return f"{method} (robust)"
+
+
 # ----------------------------------------------------------------------------------------------
 # Formatting
 
@@ -158,11 +164,16 @@ def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
     (:func:`records.load_grasp_rows`). A cell pools the grasps of its views: ``GRASP_MEANS`` means
     over grasps, medians of the joint and pose errors (``joint_error_deg_median``,
     ``pose_error_mm_median``), ``grasps`` (their number), ``lift_success_best`` (mean over views of
-    the lift of the planner's top grasp, rank 0, 0 for a view without grasps), ``views`` (entries
+    the lift of the planner's top grasp, rank 0, 0 for a view without grasps),
+    ``lift_success_best_robust`` (the same for the grasp ranked first by robustness, robust rank 0;
+    NaN when no grasp of the cell was ranked by robustness), ``views`` (entries
     without error), ``no_grasp`` (of those, views where the planner found none), ``failed``
     (entries with an error) and ``seconds_plan`` (mean per view).
     """
-    best = {(r["object"], int(r["view"]), r["method"], r["hand"]): r["lift_success"] for r in rows if r["rank"] == 0}
+    best, best_robust = (
+        {(r["object"], int(r["view"]), r["method"], r["hand"]): r["lift_success"] for r in rows if r[rank] == 0}
+        for rank in ("rank", "robust_rank")
+    )
     hands = sorted({g["hand"] for rec in records for g in rec.get("grasps", [])})
     out: dict = {}
     for hand in hands:
@@ -201,6 +212,11 @@ def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
                     lift_success_best=nanmean(
                         best.get((rec["object"], int(rec["view"]), m, hand), 0.0) for rec, _ in ok
                     ),
+                    lift_success_best_robust=nanmean(
+                        best_robust.get((rec["object"], int(rec["view"]), m, hand), 0.0) for rec, _ in ok
+                    )
+                    if any(r["robust_rank"] == 0 for r in sel)
+                    else math.nan,
                     seconds_plan=nanmean(g["seconds_plan"] for _, g in ok),
                 )
                 out[hand][s][m] = cell
@@ -326,25 +342,37 @@ def grasp_tables_markdown(g_summary: dict) -> str:
                 paper = [fmt(paper_grasp(key, s, m), digits) for m in PAPER_METHODS]
                 lines.append(f"| {SET_TITLES[s]} | " + " | ".join(cells + paper) + " |")
             lines.append("")
+        # The grasps of a method ranked by robustness too: the same grasps, another best one.
+        robust = [
+            m for m in methods if not math.isnan(by_set["all"].get(m, {}).get("lift_success_best_robust", math.nan))
+        ]
+        columns = [(m, "lift_success_best") for m in methods] + [(m, "lift_success_best_robust") for m in robust]
         lines += [
             "## Table V analogue: simulated lift success, all grasps / best grasp per view (higher is better)",
             "",
-            *_header(["View set", *methods]),
+            *_header(["View set", *methods, *map(robust_label, robust)]),
         ]
         for s in (*(s for s in VIEW_SETS if by_set[s]), "all"):
             cells = [
-                f"{fmt_share(c['lift_success'])} / {fmt_share(c['lift_success_best'])} (n={c['grasps']}/{c['views']})"
+                f"{fmt_share(c['lift_success'])} / {fmt_share(c[best])} (n={c['grasps']}/{c['views']})"
                 if (c := by_set[s].get(m))
                 else "–"
-                for m in methods
+                for m, best in columns
             ]
             lines.append(f"| {SET_TITLES.get(s, 'All views')} | " + " | ".join(cells) + " |")
+        paper = [fmt_share(paper_lift(m)) for m in methods] + [fmt_share(paper_lift(robust_label(m))) for m in robust]
         lines += [
-            "| paper, real robot (15 objects) | " + " | ".join(fmt_share(paper_lift(m)) for m in methods) + " |",
+            "| paper, real robot (15 objects) | " + " | ".join(paper) + " |",
             "",
             "Best grasp: the planner's top-ranked grasp of each view (what a robot would execute; a view "
             "without any grasp counts as a failure), n = grasps/views. The paper's figures are real-robot "
-            "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table).",
+            "trials, ours a pybullet lift of 12 cm (the paper's views: object free, no table)."
+            + (
+                " (robust): the same grasps, the best by robustness over the CNN's 8 sample completions "
+                "(the share of samples on which it keeps force closure, then its lower-quartile epsilon)."
+                if robust
+                else ""
+            ),
             "",
             "## Grasp quality and planning (all views)",
             "",
@@ -446,6 +474,7 @@ GRASP_CELL_FIELDS = (
     "joint_error_deg_median",
     "pose_error_mm_median",
     "lift_success_best",
+    "lift_success_best_robust",
     "seconds_plan",
 )
 

@@ -12,6 +12,8 @@
   the best candidates executed in the pybullet world.
 - :mod:`shapeviewer.grasp.execute`: the paper's execution on the true object, joint and pose
   errors, and a dynamic lift test.
+- :mod:`shapeviewer.grasp.robust`: each planned grasp re-closed on the CNN's sample completions,
+  and the grasps ranked by how well they survive the completion's uncertainty.
 - :mod:`shapeviewer.grasp.serialize`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.
 
 Units are metres and radians throughout; frames are named in every docstring.

@@ -325,6 +325,7 @@ class GraspWorld:
         *,
         movable: bool = False,
         decompose: bool | None = None,
+        parts: str | Path | None = None,
         mass: float = 0.2,
         friction: float = 1.0,
     ) -> int:
@@ -334,16 +335,21 @@ class GraspWorld:
         otherwise static. ``decompose`` (default: as ``movable``): collide with the cached convex
         decomposition rather than the exact triangle mesh, which pybullet supports only for static
         bodies and which makes every closest-point query 10-100x slower (one row per nearby
-        triangle), so a static object that is queried a lot should be decomposed too.
+        triangle), so a static object that is queried a lot should be decomposed too. ``parts``:
+        an OBJ of convex parts of ``mesh`` (object frame, one ``o`` object per part, as V-HACD
+        writes them) to collide with instead of the cached decomposition.
         """
         T = np.eye(4) if T_world_obj is None else np.asarray(T_world_obj, float)
         if decompose is None:
             decompose = movable
+        decompose = decompose or parts is not None
         if movable and not decompose:
             raise ValueError("a movable object needs its convex decomposition")
         if decompose:
             shape = p.createCollisionShape(
-                p.GEOM_MESH, fileName=str(convex_decomposition(mesh)), physicsClientId=self.client
+                p.GEOM_MESH,
+                fileName=str(convex_decomposition(mesh) if parts is None else parts),
+                physicsClientId=self.client,
             )
         else:
             shape = p.createCollisionShape(
