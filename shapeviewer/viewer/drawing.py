@@ -30,6 +30,7 @@ OUTPUT_VOXEL_FILL = 0.95
 PARTIAL_COLOR = (160, 160, 160)
 MIRROR_COLOR = (110, 150, 215)
 HULL_COLOR = (150, 120, 190)
+SAMPLE_COLOR = (120, 60, 160)  # the Confidence layer's purple: a sample is a guess
 # Points sent to a browser per scene (the cloud and the segments; picking and the pipeline use all
 # of them): a browser draws 300k points smoothly, millions not at all. The segments get up to
 # MAX_SEGMENT_POINTS of the budget, the cloud the rest.
@@ -255,6 +256,24 @@ class PipelineDrawing:
         idx = surface_voxels(c.grid_out)
         self.draw_voxels(
             scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, spread_colors(spread[tuple(idx.T)])
+        )
+
+    def draw_sample(self, scene: LoadedScene, sid: int, mesh: trimesh.Trimesh | None) -> None:
+        """One sample completion's camera-frame fast mesh of segment ``sid`` in the Confidence
+        layer, translucent over the completion (None: remove it)."""
+        name = f"/confidence/sample_seg_{sid}"
+        if mesh is None:
+            self.remove(name)
+            return
+        self.add(
+            name,
+            self.audience.scene.add_mesh_simple,
+            transform_points(scene.T_world_cam, mesh.vertices),
+            np.asarray(mesh.faces),
+            color=SAMPLE_COLOR,
+            opacity=0.75,
+            cast_shadow=False,
+            receive_shadow=False,
         )
 
     def draw_voxels(

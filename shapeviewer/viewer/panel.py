@@ -15,6 +15,7 @@ from ..pipeline import GUESS_SPREAD, Completion
 from .state import MESH_KINDS, MESH_TITLES
 
 NO_SEGMENT = "(none)"
+N_SAMPLES = 8  # sample completions behind the Confidence layer and the Sample slider
 NO_DATA_FILE = "(no capture files)"
 # The upload button's file filter (browsers match either the suffix or the MIME type).
 UPLOAD_MIME_TYPES = ".pcd,.ply,.png,.npy"
@@ -95,6 +96,7 @@ class Panel:
     layers: dict[str, viser.GuiCheckboxHandle]
     cloud_colors: viser.GuiDropdownHandle
     shade_output: viser.GuiCheckboxHandle
+    sample: viser.GuiSliderHandle
     export_frame: viser.GuiDropdownHandle
     mesh_format: viser.GuiDropdownHandle
     export_mesh_kind: viser.GuiDropdownHandle
@@ -165,6 +167,15 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         shade_output = gui.add_checkbox(
             "Shade by p", True, hint="Colour CNN output voxels by occupancy probability (yellow 0.5, red 1)"
         )
+        sample = gui.add_slider(
+            "Sample",
+            min=0,
+            max=N_SAMPLES,
+            step=1,
+            initial_value=0,
+            hint=f"Step through the CNN's {N_SAMPLES} sample completions of the selected segment (0: none; "
+            "1: the completion itself, the others from mirrored views); where they differ, the network guesses",
+        )
     with gui.add_folder("Load a scene"):
         seed_h = gui.add_number("Seed", seed, min=0, step=1, hint="Seed of the generated tabletop scene")
         new_scene = gui.add_button("New scene", icon=viser.Icon.DICE, hint="Generate the tabletop scene of this seed")
@@ -213,6 +224,7 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         layers,
         cloud_colors,
         shade_output,
+        sample,
         export_frame,
         mesh_format,
         export_mesh_kind,

@@ -38,6 +38,7 @@ from ..camera import Intrinsics
 from ..capture import Capture, CaptureError, load_capture
 from ..model import Completer
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
+from ..reconstruct import fast_mesh
 from . import panel as P
 from . import sources
 from .audience import Audience
@@ -500,20 +501,55 @@ class Session:
     def _draw_completion(self, c: Completion) -> None:
         assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_completion(self.scene, c, self.panel.shade_output.value)
+        self.drawing.draw_sample(self.scene, c.segment_id, None)  # a sample of the previous completion
+        set_value(self.panel.sample, 0)
         if self.panel.layers["confidence"].value:
             self.show_confidence(c)
 
     def show_confidence(self, c: Completion) -> None:
         """The Confidence layer of ``c`` and its figures in the stage panel; the 8 sample
         completions it needs (about 8 CNN passes) are made on first use."""
-        if c.samples is None:
-            c.samples = self.res.pool.run(self.res.completer.predict_samples, c.grid_in, 8, context=c.context)
+        self._ensure_samples(c)
         spread = c.spread
         assert spread is not None and self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
             c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)
         )
+
+    def show_sample(self, k: int, client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:
+        """Show sample completion ``k`` (1..8) of the selected segment as a translucent mesh in the
+        Confidence layer (turned on), or none (``k`` = 0). Returns the camera-frame mesh shown."""
+        sid = self.selected
+        c = None if sid is None else self.completions.get(sid)
+        if c is None or self.scene is None:
+            if k:
+                self.notify(client, "No completion selected", "Complete a segment, then step through its samples.")
+            return None
+        if not 0 <= k <= P.N_SAMPLES:
+            raise ValueError(f"sample {k} out of range 0..{P.N_SAMPLES}")
+        with self.jobs.take(client) as ok:
+            if not ok:
+                return None
+            mesh = None
+            if k:
+                self._ensure_samples(c)
+                assert c.samples is not None  # made just above
+                try:
+                    mesh = self.res.pool.run(fast_mesh, c.samples[k - 1], c.frame)
+                except ValueError as e:  # this sample has no surface: nothing to show
+                    self.notify(client, "Empty sample", f"Sample {k} of segment {c.segment_id}: {e}", "yellow")
+            self.drawing.draw_sample(self.scene, c.segment_id, mesh)
+            self.audience.flush()
+        if k:
+            set_value(self.panel.layers["confidence"], True)  # the sample is drawn in that layer
+            self.panel.status.content = f"Sample completion **{k}** of {P.N_SAMPLES} of segment {c.segment_id}."
+        return mesh
+
+    def _ensure_samples(self, c: Completion) -> None:
+        """Make ``c``'s sample completions (about 8 CNN passes) unless it has them."""
+        if c.samples is None:
+            c.samples = self.res.pool.run(self.res.completer.predict_samples, c.grid_in, P.N_SAMPLES, context=c.context)
 
     # ------------------------------------------------------------------------------------------
     # Loading

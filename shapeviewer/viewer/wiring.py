@@ -84,6 +84,11 @@ def wire_callbacks(app: Session) -> None:
             for c in list(app.completions.values()):
                 app.show_confidence(c)
 
+    @p.sample.on_update
+    def _(event: viser.GuiEvent) -> None:
+        if event.client is not None:  # moved by the user, not reset by the app
+            app.show_sample(int(p.sample.value), event.client)
+
     @p.cloud_colors.on_update
     def _(_event: viser.GuiEvent) -> None:
         if app.scene is not None:
