@@ -30,8 +30,9 @@ to its page's websocket receiving the mesh (seen through Playwright), not to the
 Reported: sessions, actions, errors (timeouts, refusals ("Busy"), red notifications, clicks that
 hit no segment), results shown in the WRONG session (a fast mesh or grasps that a session received
 for an action it did not do), click -> own fast mesh p50/p95/max, and the server's memory (RSS of
-its process): at start, the baseline (after a warm-up session, one click and one plan, has come
-and gone), the peak while the sessions run, and ``--settle`` seconds after they all closed.
+its process): at start, the baseline (after warm-up sessions, as many as the run's, have clicked
+a few segments and planned once at the same time, and gone), the peak while the sessions run, and
+``--settle`` seconds after they all closed.
 
 Targets (issue 13, 5 sessions x 2 minutes with one planning grasps): 0 errors, 0 results in the
 wrong session, click -> own fast mesh p95 <= 0.5 s (lightweight sessions), memory back to the
@@ -77,6 +78,7 @@ FAST_MESH = re.compile(r"^/fast_mesh/seg_(\d+)$")
 GRASPS = re.compile(r"^/grasps/seg_(\d+)$")  # the frame under which one plan's hands are drawn
 HAND_STICKS = re.compile(r"^/grasps/seg_\d+/g\d+/skeleton$")  # a hand's stick figure: clicks pick it
 PLAN_BUTTON = "Plan grasps"
+WARM_UP_CLICKS = 3  # segment clicks of each warm-up session
 HAND_PICK_SPACING = 0.004  # m between the points along a stick figure the viewer picks (grasps/drawing.py)
 # Notification titles that end an action (shapeviewer/viewer/app.py, jobs.py, grasps/).
 BUSY = "Busy"
@@ -560,22 +562,28 @@ class BrowserSession(Session):
 # A run
 
 
-async def warm_up(url: str, args) -> Stats:
-    """One session that clicks one segment (and plans grasps on it when sessions will) and leaves:
-    the server's first CNN call, first mesh and first plan allocate what stays allocated (models,
-    hands, caches), so the memory baseline is taken after it."""
-    client = ViserClient(url, "warm-up")
-    task = asyncio.create_task(client.run())
-    session = Session("warm-up", client, args.planners > 0, random.Random(args.seed), args)
-    try:
-        if await session.ready(args.setup_timeout):
-            sid = await session.click_segment()
-            if session.planner and sid is not None:
-                await session.plan(sid)
-    finally:
-        await client.close()
-        await asyncio.wait_for(task, 10)
-    return session.stats
+async def warm_up(url: str, args) -> list[Stats]:
+    """As many sessions as the run will have, at once, each clicking a few segments (the first
+    planning grasps when sessions will), then leaving: the server's first CNN calls, meshes and
+    plans, in every worker thread, allocate what stays allocated (models, hands, each worker's
+    thread state and allocator arena), so the memory baseline is taken after them."""
+
+    async def one(i: int) -> Stats:
+        client = ViserClient(url, f"warm-up {i + 1}")
+        task = asyncio.create_task(client.run())
+        session = Session(client.name, client, i < args.planners, random.Random(args.seed - i - 1), args)
+        try:
+            if await session.ready(args.setup_timeout):
+                for _ in range(WARM_UP_CLICKS):
+                    sid = await session.click_segment()
+                if session.planner and sid is not None:
+                    await session.plan(sid)
+        finally:
+            await client.close()
+            await asyncio.wait_for(task, 10)
+        return session.stats
+
+    return list(await asyncio.gather(*(one(i) for i in range(args.sessions))))
 
 
 async def run_sessions(url: str, args) -> tuple[list[Stats], dict[str, Any]]:
@@ -755,7 +763,7 @@ def markdown(r: dict[str, Any]) -> str:
         f"| Plan grasps -> own grasps received (n={plans['n']}) | p50 {fmt_s(plans['p50'])}, "
         f"max {fmt_s(plans['max'])} | | |",
         f"| server memory (RSS) | start {fmt_mb(mem.get('start'))}, baseline {fmt_mb(mem.get('baseline'))} "
-        f"(after the warm-up session), peak {fmt_mb(mem.get('peak'))}, "
+        f"(after the warm-up sessions), peak {fmt_mb(mem.get('peak'))}, "
         f"after {fmt_mb(mem.get('after'))} ({c['settle']:g} s after all closed) "
         f"| back to baseline (+{MEMORY_TOLERANCE[0]:.0%} / {MEMORY_TOLERANCE[1]:.0f} MB) "
         f"| {verdict('memory_after_vs_baseline')} |",
@@ -800,9 +808,9 @@ async def main_async(args) -> dict[str, Any]:
         watch = MemoryWatch(pid)
         memory["start"] = watch.now()
         if args.warmup:
-            print("warm-up session ...", file=sys.stderr)
-            w = await warm_up(url, args)
-            info["warm_up"] = dict(w.outcomes)
+            print(f"warm-up: {args.sessions} sessions at once ...", file=sys.stderr)
+            warm = await warm_up(url, args)
+            info["warm_up"] = dict(sum((Counter(w.outcomes) for w in warm), Counter()))
         await asyncio.sleep(args.settle)
         memory["baseline"] = watch.now()
         watch.reset_peak()
@@ -850,7 +858,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plan-timeout", type=float, default=180.0, help="wait at most this long for grasps (s)")
     ap.add_argument("--setup-timeout", type=float, default=120.0, help="wait this long for a session's scene (s)")
     ap.add_argument("--settle", type=float, default=5.0, help="wait before reading memory at rest (s)")
-    ap.add_argument("--no-warmup", dest="warmup", action="store_false", help="no warm-up session first")
+    ap.add_argument("--no-warmup", dest="warmup", action="store_false", help="no warm-up sessions first")
     ap.add_argument("--seed", type=int, default=0, help="seed of the sessions' choices")
     ap.add_argument("--port", type=int, default=None, help="the server's port (default: a free one)")
     ap.add_argument("--server-args", default="", help="more arguments for app.py, e.g. '--seed 3'")

@@ -41,10 +41,19 @@ from shapeviewer.viewer.rays import ray_through
 from helpers import (
     browser_page,
     canvas_point,
+    checked,
+    choose,
+    click,
     click_until,
+    dropdown_options,
+    dropdown_value,
     free_port,
     needs_browser,
+    page_shows,
+    page_text,
+    press,
     reported_camera,
+    wait_for_text,
     wait_until,
 )
 from store_factory import VIEWS, make_store
@@ -75,84 +84,6 @@ def scene_node(client, name: str):
 
 # ----------------------------------------------------------------------------------------------
 # The browser
-
-
-def page_text(page) -> str:
-    """The text the page shows (hidden tabs and closed folders excluded)."""
-    return page.evaluate("() => document.body.innerText")
-
-
-def wait_for_text(page, text: str, timeout: float = 30.0) -> None:
-    """Wait until the page shows ``text`` (a notification, the panel's markdown, ...)."""
-    page.wait_for_function(
-        "t => document.body.innerText.includes(t)", arg=text, polling=500, timeout=int(timeout * 1000)
-    )
-
-
-def page_shows(page, text: str, not_: str | None = None) -> bool:
-    """Whether the page shows ``text`` (and not ``not_``)."""
-    shown = page_text(page)
-    return text in shown and (not_ is None or not_ not in shown)
-
-
-# Where a user's click on element ``e`` lands (its centre, scrolled into view), and whether ``e``
-# is what is there (not a folder that is still opening over it, a notification, ...).
-HIT_POINT = """e => {
-  e.scrollIntoView({block: "nearest"});
-  const r = e.getBoundingClientRect(), x = r.x + r.width / 2, y = r.y + r.height / 2;
-  const there = document.elementFromPoint(x, y);
-  return [x, y, there !== null && (there === e || e.contains(there))];
-}"""
-
-
-def click(page, locator, what: str) -> None:
-    """Click the first visible match of ``locator`` with the mouse, once it is what a click at its
-    centre would hit and it stands still there.
-
-    (Playwright's own actionability checks wait for animation frames, which a software-rendered
-    WebGL canvas on a busy machine starves; these checks poll the page instead.)"""
-    target = locator.filter(visible=True).first
-    target.wait_for(state="visible", timeout=30_000)
-
-    def hit() -> tuple[float, float] | None:
-        x, y, ok = target.evaluate(HIT_POINT)
-        time.sleep(0.15)
-        return (x, y) if ok and target.evaluate(HIT_POINT)[:2] == [x, y] else None
-
-    page.mouse.click(*wait_until(hit, 30, f"{what} to be clickable", step=0.2))
-
-
-def press(page, name: str) -> None:
-    """Click the button called exactly ``name`` once it is enabled (no job running)."""
-    button = page.get_by_role("button", name=name, exact=True).filter(visible=True).first
-    button.wait_for(state="visible", timeout=30_000)
-    wait_until(button.is_enabled, 60, f"the {name!r} button to be enabled (no job running)")
-    click(page, button, f"the {name!r} button")
-
-
-def choose(page, dropdown: str, option: str) -> None:
-    """Pick ``option`` (its full text) in the visible dropdown labelled ``dropdown``."""
-    click(page, page.get_by_role("combobox", name=dropdown, exact=True), f"the {dropdown!r} dropdown")
-    click(page, page.get_by_role("option", name=option, exact=True), f"the {option!r} entry")
-    wait_until(lambda: dropdown_value(page, dropdown) == option, 10, f"{dropdown!r} to show {option!r}")
-
-
-def dropdown_value(page, dropdown: str) -> str:
-    return page.get_by_role("combobox", name=dropdown, exact=True).filter(visible=True).first.input_value()
-
-
-def dropdown_options(page, dropdown: str) -> list[str]:
-    """The entries of the visible dropdown ``dropdown`` (opened and closed again)."""
-    click(page, page.get_by_role("combobox", name=dropdown, exact=True), f"the {dropdown!r} dropdown")
-    options = page.get_by_role("option")
-    options.first.wait_for(timeout=10_000)
-    texts = [t.strip() for t in options.all_inner_texts()]
-    page.keyboard.press("Escape")
-    return texts
-
-
-def checked(page, label: str) -> bool:
-    return page.get_by_role("checkbox", name=label, exact=True).filter(visible=True).first.is_checked()
 
 
 def download(page, button: str, folder: Path) -> Path:

@@ -4,6 +4,7 @@ execution on the ground truth, export, real captures, failures."""
 from __future__ import annotations
 
 import io
+import json
 import time
 import zipfile
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from shapeviewer.camera import transform_points
+from shapeviewer.grasp.robust import rank_robust, robustness
 from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import grasps as G
 from shapeviewer.viewer.session import Session
@@ -237,6 +239,50 @@ def test_json_export_round_trips_with_executions(app, planned):
         assert {"object.urdf", "object.obj", "grasps.json"} <= set(z.namelist())
     with pytest.raises(ValueError, match="plan grasps"):
         app.export_grasps(10_000)
+
+
+def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
+    sid = planned.segment_id
+    panel = app.grasps.panel
+    assert app.grasps.current == sid and not panel.rank.disabled  # the listed segment has grasps
+    # Cancelled before the first sample: no scores, the planner's order stays.
+    job = app.grasps.rank(sid, wait=False)
+    assert job is not None
+    job.cancel()
+    assert job.wait(120) and job.cancelled and job.result is None and job.error is None
+    assert planned.robustness is None and panel.grasp.options[0].startswith("#1 ")
+
+    job = app.grasps.rank(sid)
+    assert job is not None and job.error is None, job.error
+    scores = job.result
+    assert planned.robustness is scores and len(scores) == len(planned.grasps)
+    assert app.completions[sid].samples.shape == (8, 40, 40, 40)  # made on demand, kept for the Confidence layer
+    for r in scores:
+        assert 0.0 <= r.fraction <= 1.0 and len(r.epsilons) == 8 and r.epsilon_low <= max(r.epsilons)
+    # The dropdown lists the most robust grasp first, selected; each entry says how many samples it holds on.
+    best = rank_robust(scores)[0]
+    options = list(panel.grasp.options)
+    assert options[0].startswith(f"#{best + 1} ") and panel.grasp.value == options[0] and app.grasps.selected == best
+    assert all(" · holds " in o for o in options)
+    held = [int(o.split("holds ")[1].split("/")[0]) for o in options]
+    assert held == sorted(held, reverse=True) and held[0] == round(8 * scores[best].fraction)
+    info = panel.info.content
+    assert "Ranked by robustness" in info and f"**Grasp #{best + 1}**" in info and "rank **1**" in info
+    assert f"25% ε {scores[best].epsilon_low:.4f}" in info
+    assert not panel.rank.disabled and panel.cancel.disabled
+
+    # The JSON carries each grasp's robustness (bitwise), and a file without it still reads.
+    back = grasps_from_json(app.export_grasps(sid, "json")[1])
+    assert back.robustness == scores and back.meta["robust_quantile"] == 0.25
+    doc = json.loads(app.export_grasps(sid, "json")[1])
+    for d in doc["grasps"]:
+        del d["robustness"]
+    assert grasps_from_json(json.dumps(doc)).robustness == [None] * len(scores)
+    with zipfile.ZipFile(io.BytesIO(app.export_grasps(sid, "zip")[1])) as z:
+        assert grasps_from_json(z.read("grasps.json")).robustness == scores
+    # Callbacks cannot come back from forked workers.
+    with pytest.raises(ValueError, match="processes=1"):
+        robustness(planned.grasps, [planned.mesh_world], planned.mesh_world, processes=2, cancel=lambda: False)
 
 
 def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(app, planned, monkeypatch):

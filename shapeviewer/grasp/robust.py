@@ -32,6 +32,8 @@ hulls of a sample's own vertices do not.)
 Cost: about 10 ms per grasp and sample to re-close the hand and as much for its epsilon, so 20
 grasps on 8 samples take about 3 s of CPU time (``benchmarks/robust.py``), shared by ``processes``.
 Deterministic: nothing here is random (no seed to give); ``processes`` only shares out the samples.
+In one process the work can report its progress and be cancelled between samples (the viewer's
+"Rank by robustness" job); forked workers cannot call back.
 """
 
 from __future__ import annotations
@@ -50,12 +52,17 @@ from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import APPROACH_SLACK, BACK_OFF, approach_and_close, object_contacts
 from shapeviewer.grasp.quality import max_radius
+from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition, mesh_hash
 from shapeviewer.reconstruct import fast_mesh
 from shapeviewer.voxel import GridFrame
 
 ROBUST_QUANTILE = 0.25  # the robust score's pessimistic epsilon: the lower quartile over samples
+
+
+class RobustnessCancelled(Exception):
+    """:func:`robustness` stopped because its ``cancel`` returned True."""
 
 
 @dataclass(frozen=True)
@@ -143,13 +150,18 @@ def _sample_epsilons(
     parts: _Parts,
     table: bool,
     folder: str,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
 ) -> dict[int, list[float]]:
     """Each grasp's epsilon on each of ``samples`` (index, mesh), in one world whose object is
-    swapped per sample, cut into ``parts``; ``folder``: where the samples' parts are written."""
+    swapped per sample, cut into ``parts``; ``folder``: where the samples' parts are written.
+    ``progress`` is told the share of samples done; ``cancel`` is asked before each sample."""
     hand = get_hand(grasps[0].hand)
     out: dict[int, list[float]] = {}
     with GraspWorld(hand, table=table) as world:
         for k, mesh in samples:
+            if cancel is not None and cancel():
+                raise RobustnessCancelled
             body = world.add_object(mesh, parts=parts.obj(mesh, Path(folder) / f"sample{k}.obj"))
             com = centre_of_mass(mesh)
             radius = max_radius(mesh.vertices, com)
@@ -162,6 +174,8 @@ def _sample_epsilons(
                 epsilons.append(object_contacts(closed, body, com, radius)[1].epsilon)
             world.remove_object(body)
             out[k] = epsilons
+            if progress is not None:
+                progress(len(out) / len(samples))
     return out
 
 
@@ -173,6 +187,8 @@ def robustness(
     table: bool = True,
     quantile: float = ROBUST_QUANTILE,
     processes: int = 1,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
 ) -> list[Robustness]:
     """Each grasp's :class:`Robustness` over the sample completions ``samples_world``.
 
@@ -181,13 +197,18 @@ def robustness(
     epsilon over the samples, for :attr:`Robustness.epsilon_low`. ``processes``: forked workers
     that share the samples (each re-closes every grasp on its samples); 1 works in this process,
     which is right wherever other workers already fill the cores (the evaluation's).
+    ``progress``: told the share of samples done (0..1); ``cancel``: asked before each sample.
+    Both need ``processes`` = 1.
 
     Raises:
         DecompositionError: V-HACD of ``planned_on_world`` failed (it is cached by the planner,
             which needed it too, so it is normally not computed again here).
+        RobustnessCancelled: ``cancel`` returned True.
     """
     if not samples_world or processes < 1:
         raise ValueError(f"robustness needs samples and processes; got {len(samples_world)} and {processes}")
+    if processes > 1 and (progress is not None or cancel is not None):
+        raise ValueError("progress and cancel need processes=1: forked workers cannot call back")
     if not grasps:
         return []
     if len({g.hand for g in grasps}) > 1:
@@ -202,7 +223,7 @@ def robustness(
             with mp.get_context("fork").Pool(len(jobs)) as pool:
                 results = pool.starmap(_sample_epsilons, jobs)
         else:
-            results = [_sample_epsilons(*job) for job in jobs]
+            results = [_sample_epsilons(*job, progress, cancel) for job in jobs]
     by_sample = {k: eps for result in results for k, eps in result.items()}
     epsilons = np.array([by_sample[k] for k in range(len(indexed))]).T  # grasps x samples
     return [

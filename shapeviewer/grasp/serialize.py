@@ -11,7 +11,13 @@ lengths in metres, angles in radians, except the execution errors, as named in `
                  "contacts": [{"link": ..., "position": [...], "normal": [...]}, ...],
                  "epsilon": e, "volume": v, "energy": E, "force_closure": bool,
                  "execution": null or {the executed state, "joint_error", "pose_error",
-                                       "start_clear", "approach_contact", "lift": null or {...}}}]}
+                                       "start_clear", "approach_contact", "lift": null or {...}},
+                 "robustness": null or {"fraction", "epsilon_low", "epsilons"}}]}
+
+``robustness`` (:class:`~shapeviewer.grasp.robust.Robustness`) is how the grasp fares re-closed on
+sample completions: the share of samples on which it holds, a lower quantile of its epsilon over
+them (the writer may name the quantile in ``meta``) and its epsilon on each sample. Files written
+before it existed have no such key; they read as null.
 
 The palm frame is the hand URDF's base link frame (origin at the centre of the palm face, +z the
 approach). Reading uses ``T_world_palm``; position, quaternion, approach and force_closure are
@@ -37,6 +43,7 @@ from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.execute import ExecutionResult, LiftResult
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import ProgressFn, plan
+from shapeviewer.grasp.robust import Robustness
 from shapeviewer.grasp.state import Grasp, GraspContact, HandState
 from shapeviewer.grasp.world import convex_decomposition
 
@@ -49,11 +56,13 @@ UNITS = {"length": "m", "angle": "rad", "joint_error": "deg (mm for prismatic jo
 
 @dataclass
 class GraspSet:
-    """Grasps read from JSON, each with its execution (or None), and the file's ``meta`` dict."""
+    """Grasps read from JSON, each with its execution and its robustness (or None), and the
+    file's ``meta`` dict."""
 
     grasps: list[Grasp]
     executions: list[ExecutionResult | None]
     meta: dict = field(default_factory=dict)
+    robustness: list[Robustness | None] = field(default_factory=list)
 
 
 def _floats(a) -> list:
@@ -91,8 +100,8 @@ def _named(d: dict, names: str, values: str) -> dict[str, float]:
     return dict(zip(d[names], map(float, d[values])))
 
 
-def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dict:
-    """One grasp (and its execution, if any) as a JSON-ready dict."""
+def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None, robustness: Robustness | None = None) -> dict:
+    """One grasp (and its execution and robustness, if any) as a JSON-ready dict."""
     d = _state_to_dict(grasp)
     d["energy"] = float(grasp.energy)
     d["execution"] = None
@@ -112,6 +121,15 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None) -> dic
             },
         )
         d["execution"] = e
+    d["robustness"] = (
+        None
+        if robustness is None
+        else {
+            "fraction": float(robustness.fraction),
+            "epsilon_low": float(robustness.epsilon_low),
+            "epsilons": _floats(robustness.epsilons),
+        }
+    )
     return d
 
 
@@ -154,16 +172,20 @@ def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
 
 
 def grasps_to_json(
-    grasps: Sequence[Grasp], executions: Sequence[ExecutionResult | None] | None = None, meta: dict | None = None
+    grasps: Sequence[Grasp],
+    executions: Sequence[ExecutionResult | None] | None = None,
+    meta: dict | None = None,
+    robustness: Sequence[Robustness] | None = None,
 ) -> str:
-    """The grasps (and executions, index-aligned, None where absent) as a JSON document, one
-    grasp per line."""
+    """The grasps (and executions and robustness scores, index-aligned; executions None where
+    absent) as a JSON document, one grasp per line."""
     executions = list(executions) if executions is not None else [None] * len(grasps)
-    if len(executions) != len(grasps):
-        raise ValueError(f"{len(executions)} executions for {len(grasps)} grasps")
+    scores: list[Robustness | None] = list(robustness) if robustness is not None else [None] * len(grasps)
+    if len(executions) != len(grasps) or len(scores) != len(grasps):
+        raise ValueError(f"{len(executions)} executions and {len(scores)} robustness scores for {len(grasps)} grasps")
     head = {"format": FORMAT, "version": VERSION, "frame": "world", "units": UNITS, "meta": meta or {}}
     lines = [f' "{k}": {json.dumps(v)},' for k, v in head.items()]
-    items = ",\n  ".join(json.dumps(grasp_to_dict(g, e)) for g, e in zip(grasps, executions))
+    items = ",\n  ".join(json.dumps(grasp_to_dict(g, e, r)) for g, e, r in zip(grasps, executions, scores))
     return "{\n" + "\n".join(lines) + '\n "grasps": [\n  ' + items + "\n ]\n}\n"
 
 
@@ -173,7 +195,17 @@ def grasps_from_json(text: str | bytes) -> GraspSet:
     if doc.get("format") != FORMAT or doc.get("version") != VERSION:
         raise ValueError(f"not a {FORMAT} v{VERSION} document: {doc.get('format')!r} v{doc.get('version')!r}")
     pairs = [grasp_from_dict(d) for d in doc["grasps"]]
-    return GraspSet([g for g, _ in pairs], [e for _, e in pairs], doc.get("meta", {}))
+    scores = [
+        None
+        if d.get("robustness") is None
+        else Robustness(
+            float(d["robustness"]["fraction"]),
+            float(d["robustness"]["epsilon_low"]),
+            tuple(map(float, d["robustness"]["epsilons"])),
+        )
+        for d in doc["grasps"]
+    ]
+    return GraspSet([g for g, _ in pairs], [e for _, e in pairs], doc.get("meta", {}), scores)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -227,9 +259,11 @@ def scene_zip(
     executions: Sequence[ExecutionResult | None] | None = None,
     meta: dict | None = None,
     mass: float = 0.2,
+    robustness: Sequence[Robustness] | None = None,
 ) -> bytes:
     """A zip (bytes) of the object (OBJ, convex decomposition, URDF), the hands used and
-    grasps.json, loadable in pybullet as its README shows. ``mesh_world``: world frame, metres."""
+    grasps.json (see :func:`grasps_to_json` for ``executions``, ``meta`` and ``robustness``),
+    loadable in pybullet as its README shows. ``mesh_world``: world frame, metres."""
     hands = sorted({g.hand for g in grasps}) or ["barrett"]
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
@@ -253,7 +287,7 @@ def scene_zip(
                 }
             ):
                 z.writestr(f"hands/{mesh_path.relative_to(urdf.parent).as_posix()}", mesh_path.read_bytes())
-        z.writestr("grasps.json", grasps_to_json(grasps, executions, meta))
+        z.writestr("grasps.json", grasps_to_json(grasps, executions, meta, robustness))
         z.writestr("README.txt", _README.format(mass=mass, urdf=get_hand(hands[0]).urdf.name))
     return buf.getvalue()
 

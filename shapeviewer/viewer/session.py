@@ -36,6 +36,7 @@ import viser
 
 from ..camera import Intrinsics
 from ..capture import Capture, CaptureError, load_capture
+from ..grasp.robust import sample_meshes
 from ..model import Completer
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
 from ..reconstruct import fast_mesh
@@ -127,6 +128,7 @@ class Session:
             selected_segment=lambda: self.selected,
             mesh=self._existing_mesh,
             make_mesh=self._make_mesh_for_grasps,
+            samples=self._sample_meshes_world,
             show_layer=self._show_layer,
             set_status=self._set_status,
             notify=self.notify,
@@ -639,6 +641,14 @@ class Session:
     def _existing_mesh(self, kind: str, segment_id: int) -> trimesh.Trimesh | None:
         c = self.completions.get(segment_id)
         return None if c is None else getattr(c, f"{kind}_mesh")
+
+    def _sample_meshes_world(self, segment_id: int) -> list[trimesh.Trimesh] | None:
+        c, scene = self.completions.get(segment_id), self.scene
+        if c is None or scene is None:
+            return None
+        self._ensure_samples(c)
+        assert c.samples is not None  # made just above
+        return sample_meshes(c.samples, c.frame, scene.T_world_cam)
 
     def _make_mesh_for_grasps(
         self, kind: str, segment_id: int, client: viser.ClientHandle | None

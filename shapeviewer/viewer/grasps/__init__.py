@@ -1,12 +1,13 @@
 """Grasps in the viewer (paper Fig. 5, step 6; SPEC section 8): plan on a segment's mesh, draw the
-hands, execute them on the true object of a synthetic scene, export them.
+hands, execute them on the true object of a synthetic scene, rank them by how many of the
+completion's sample completions they hold on (issue 14), export them.
 
 Frames: everything here is in the viewer's WORLD frame (metres, z up, table top z = 0). A segment's
 mesh (camera frame on its :class:`~shapeviewer.pipeline.Completion`) is mapped with
 ``scene.T_world_cam`` before planning; a grasp's ``T_world_palm`` places the palm frame, in which
 :func:`~shapeviewer.grasp.hands.hand_meshes` gives the hand's links.
 
-Jobs: planning and execution run in a background thread, one grasp job per session at a time,
+Jobs: planning, execution and ranking run in a background thread, one grasp job per session at a time,
 outside the session's job queue, so the rest of the viewer keeps working meanwhile; they compute
 in a small worker pool shared by all sessions. A mesh that the planner needs and the segment lacks
 is made first through the session (in its job queue, for the few moments it needs). The

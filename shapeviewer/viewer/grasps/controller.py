@@ -1,5 +1,6 @@
-"""The grasp controller: plans and executes grasps on the app's segments, keeps which are listed
-and selected, and wires the Grasps folder. It reaches the app only through a :class:`GraspHost`."""
+"""The grasp controller: plans, executes and ranks by robustness the grasps on the app's segments,
+keeps which are listed and selected, and wires the Grasps folder. It reaches the app only through a
+:class:`GraspHost`."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import viser
 from ...grasp.execute import ExecutionResult, execute_grasps, lift_test
 from ...grasp.hands import HAND_NAMES
 from ...grasp.plan import plan
+from ...grasp.robust import ROBUST_QUANTILE, Robustness, RobustnessCancelled, rank_robust, robustness
 from ...grasp.serialize import grasps_to_json, scene_zip
 from ..audience import Audience
 from ..gui import set_value
@@ -41,6 +43,8 @@ class GraspHost:
             :data:`~..state.MESH_KINDS`) when it has been made, else None.
         make_mesh: ``(kind, segment id, client)`` -> make and draw that mesh (taking the app's job
             slot for the moments it needs); None when it cannot be made (the client was told why).
+        samples: segment id -> the meshes of its completion's sample completions (world frame,
+            metres; the samples are made when missing), None when the segment has no completion.
         show_layer: ``(layer key, visible)``: tick or untick a layer's checkbox.
         set_status: show a line in the panel's status.
         notify: ``(client, title, body, color=None, auto_close=8.0)``; red ones are errors.
@@ -50,13 +54,14 @@ class GraspHost:
     selected_segment: Callable[[], int | None]
     mesh: Callable[[str, int], trimesh.Trimesh | None]
     make_mesh: Callable[[str, int, viser.ClientHandle | None], trimesh.Trimesh | None]
+    samples: Callable[[int], list[trimesh.Trimesh] | None]
     show_layer: Callable[[str, bool], None]
     set_status: Callable[[str], None]
     notify: Notify
 
 
 class GraspController:
-    """Plans, executes, draws and exports the grasps of the app's segments (one job at a time).
+    """Plans, executes, ranks, draws and exports the grasps of the app's segments (one job at a time).
 
     Args:
         audience: the browser tab (or every browser) of the session: the Grasps folder goes in its
@@ -71,7 +76,7 @@ class GraspController:
         self.host = host
         self.panel = build_grasp_panel(audience.gui, order)
         self.drawing = GraspDrawing(audience)
-        self.jobs = GraspJobs(self.panel, pool, host.notify, host.set_status)
+        self.jobs = GraspJobs(self.panel, pool, host.notify, host.set_status, self._has_grasps)
         self.sets: dict[int, SegmentGrasps] = {}
         self.current: int | None = None  # the segment whose grasps the dropdown lists
         self.selected: int | None = None  # index of the selected grasp in that segment's list
@@ -159,6 +164,20 @@ class GraspController:
             wait,
             lambda job: self._execute_job(job, scene, s, picked, truth, lift, client),
         )
+
+    def rank(
+        self, segment_id: int | None, client: viser.ClientHandle | None = None, wait: bool = True
+    ) -> GraspJob | None:
+        """Score segment ``segment_id``'s grasps over its completion's sample completions
+        (:func:`~shapeviewer.grasp.robust.robustness`, against the mesh they were planned on), list
+        them most robust first and select the most robust. Runs in a background thread like
+        :meth:`plan`; ``job.result``: the scores in grasp order (None when cancelled)."""
+        scene = self.host.scene()
+        s = self.sets.get(segment_id) if segment_id is not None else None
+        if scene is None or s is None or not s.grasps:
+            self.host.notify(client, "No grasps", "Plan grasps on a segment first, then rank them.", "yellow")
+            return None
+        return self.jobs.start("rank", s.segment_id, client, wait, lambda job: self._rank_job(job, scene, s, client))
 
     def cancel(self) -> bool:
         """Ask the running grasp job to stop; False when none runs."""
@@ -283,6 +302,44 @@ class GraspController:
         self.host.notify(client, "Executed" + cancelled, execution_summary(sid, name, results), "green")
         return results
 
+    def _rank_job(
+        self, job: GraspJob, scene: LoadedScene, s: SegmentGrasps, client: viser.ClientHandle | None
+    ) -> list[Robustness] | None:
+        sid = s.segment_id
+        self.host.set_status(f"_Grasps: making the sample completions of segment {sid}..._")
+        samples = self.host.samples(sid)
+        if samples is None:
+            raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
+        self.host.set_status(f"_Re-closing {len(s.grasps)} grasps on {len(samples)} sample completions..._")
+        try:
+            scores = robustness(
+                s.grasps,
+                samples,
+                s.mesh_world,
+                table=s.table,
+                progress=self.jobs.progress,
+                cancel=job.cancel_event.is_set,
+            )
+        except RobustnessCancelled:
+            self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
+            return None
+        order = rank_robust(scores)
+        with self._state:
+            if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
+                return scores
+            s.robustness = scores
+            self.current, self.selected = sid, order[0]  # the user asked for the most robust one
+            self._refresh_panel()
+        best = scores[order[0]]
+        self.host.notify(
+            client,
+            "Ranked by robustness",
+            f"Segment {sid}: grasp #{order[0] + 1} is the most robust; it holds on "
+            f"{round(best.fraction * len(samples))} of {len(samples)} sample completions.",
+            "green",
+        )
+        return scores
+
     # ------------------------------------------------------------------------------------------
     # Selection, export, scene changes
 
@@ -306,8 +363,9 @@ class GraspController:
             self.select(0 if self.sets[segment_id].grasps else None, segment_id)
 
     def export(self, segment_id: int | None, fmt: str = "json") -> tuple[str, bytes]:
-        """``(file name, content)`` of a segment's grasps: ``json`` (with executions when present) or
-        ``zip`` (the pybullet scene of the mesh they were planned on). Raises ValueError for the user."""
+        """``(file name, content)`` of a segment's grasps: ``json`` (with executions and robustness
+        when present) or ``zip`` (the pybullet scene of the mesh they were planned on, that JSON
+        included). Raises ValueError for the user."""
         s = self.sets.get(segment_id) if segment_id is not None else None
         if s is None or not s.grasps:
             raise ValueError("No grasps to export: plan grasps on a segment first.")
@@ -323,12 +381,16 @@ class GraspController:
             "T_world_cam": np.asarray(scene.T_world_cam).tolist(),
             "planning_seconds": s.stats.seconds.get("total"),
             "ground_truth": s.truth_name,
+            # The quantile each grasp's robustness.epsilon_low is of its epsilons over the samples.
+            "robust_quantile": None if s.robustness is None else ROBUST_QUANTILE,
         }
         stem = f"{scene.name}_seg{s.segment_id}_{s.method}_{s.hand}"
         if fmt == "json":
-            return f"{stem}_grasps.json", grasps_to_json(s.grasps, s.executions, meta).encode()
+            return f"{stem}_grasps.json", grasps_to_json(s.grasps, s.executions, meta, s.robustness).encode()
         if fmt == "zip":
-            return f"{stem}_pybullet.zip", scene_zip(s.mesh_world, s.grasps, s.executions, meta)
+            return f"{stem}_pybullet.zip", scene_zip(
+                s.mesh_world, s.grasps, s.executions, meta, robustness=s.robustness
+            )
         raise ValueError(f"unknown grasp export {fmt!r}; choose json or zip")
 
     def clear(self) -> None:
@@ -355,6 +417,11 @@ class GraspController:
         """The grasps of the segment the dropdown lists (None: no segment or no grasps)."""
         return None if self.current is None else self.sets.get(self.current)
 
+    def _has_grasps(self) -> bool:
+        """Whether the listed segment has grasps (to rank)."""
+        s = self._listed()
+        return s is not None and bool(s.grasps)
+
     def _restyle(self) -> None:
         self.drawing.restyle(self.current, self.selected, bool(self.panel.show_all.value))
 
@@ -370,9 +437,12 @@ class GraspController:
             options = tuple(self._options)
             if tuple(self.panel.grasp.options) != options:
                 self.panel.grasp.options = options
-            value = NO_GRASP if self.selected is None else options[self.selected]
+            # Entries follow the robust order once ranked: find the selected grasp's entry by index.
+            entry = {k: o for o, k in self._options.items()}
+            value = NO_GRASP if self.selected is None else entry[self.selected]
             if self.panel.grasp.value != value:
                 set_value(self.panel.grasp, value)
+        self.jobs.refresh_rank()
         self._restyle()
         self._show_info()
 
@@ -391,6 +461,10 @@ class GraspController:
         @p.cancel.on_click
         def _(_event: viser.GuiEvent) -> None:
             self.cancel()
+
+        @p.rank.on_click
+        def _(event: viser.GuiEvent) -> None:
+            self.rank(self.current, event.client, wait=False)
 
         @p.grasp.on_update
         def _(event: viser.GuiEvent) -> None:

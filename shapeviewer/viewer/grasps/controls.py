@@ -41,6 +41,7 @@ class GraspPanel:
     plan: viser.GuiButtonHandle
     progress: GuiProgressBarHandle
     cancel: viser.GuiButtonHandle
+    rank: viser.GuiButtonHandle  # enabled while the listed segment has grasps and no job runs
     grasp: viser.GuiDropdownHandle
     show_all: viser.GuiCheckboxHandle
     info: viser.GuiMarkdownHandle
@@ -50,7 +51,7 @@ class GraspPanel:
 
     @property
     def job_buttons(self) -> tuple[viser.GuiButtonHandle, ...]:
-        """Buttons that start a grasp job (disabled while one runs)."""
+        """Buttons that start a grasp job whenever none runs (Rank by robustness also needs grasps)."""
         return (self.plan, self.execute, self.execute_all)
 
 
@@ -78,6 +79,13 @@ def build_grasp_panel(gui: viser.GuiApi, order: float | None = None) -> GraspPan
         cancel = gui.add_button(
             "Cancel", icon=viser.Icon.PLAYER_STOP, color="red", disabled=True, hint="Stop the running grasp job"
         )
+        rank = gui.add_button(
+            "Rank by robustness",
+            icon=viser.Icon.SHIELD_CHECK,
+            disabled=True,
+            hint="Re-close every grasp on 8 sample completions (other plausible shapes of the unseen side) "
+            "and list the grasps that hold on most of them first",
+        )
         grasp = gui.add_dropdown("Grasp", (NO_GRASP,), hint="Select a grasp: it is highlighted and described below")
         show_all = gui.add_checkbox("Show all", True, hint="Show the other grasps dimmed (off: only the selected one)")
         info = gui.add_markdown("_Select a segment, then plan grasps on it._")
@@ -91,5 +99,5 @@ def build_grasp_panel(gui: viser.GuiApi, order: float | None = None) -> GraspPan
         )
         exports = {fmt: gui.add_button(label, icon=icon, hint=hint) for fmt, (label, icon, hint) in EXPORTS.items()}
     return GraspPanel(
-        hand, method, count, plan_b, progress, cancel, grasp, show_all, info, execute, execute_all, exports
+        hand, method, count, plan_b, progress, cancel, rank, grasp, show_all, info, execute, execute_all, exports
     )

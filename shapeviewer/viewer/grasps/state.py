@@ -17,6 +17,7 @@ from ...camera import transform_points
 from ...capture import Capture, SceneObject
 from ...grasp.execute import ExecutionResult
 from ...grasp.plan import Grasp, PlanStats
+from ...grasp.robust import Robustness
 from ...segment import Segment
 
 MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share of its labelled points are
@@ -38,6 +39,8 @@ class SegmentGrasps:
         executions: per grasp, its execution on the true object (None until executed).
         truth_name: the true object's catalogue name once executed (synthetic scenes).
         truth_world: the true object's world-frame mesh once executed.
+        robustness: per grasp, how it fares re-closed on the completion's sample completions,
+            once ranked by robustness (None before).
     """
 
     segment_id: int
@@ -51,6 +54,7 @@ class SegmentGrasps:
     executions: list[ExecutionResult | None] = field(default_factory=list)
     truth_name: str | None = None
     truth_world: trimesh.Trimesh | None = None
+    robustness: list[Robustness] | None = None
 
     def __post_init__(self) -> None:
         if not self.executions:
@@ -59,7 +63,7 @@ class SegmentGrasps:
 
 @dataclass(eq=False)
 class GraspJob:
-    """A planning or execution job running in the background.
+    """A planning, execution or robustness-ranking job running in the background.
 
     ``done`` is set when it has finished (``result`` then holds what it made, ``error`` a message
     when it failed, ``cancelled`` whether Cancel stopped it).

@@ -13,6 +13,7 @@ import numpy as np
 
 from ...grasp.execute import ExecutionResult
 from ...grasp.hands import Hand, get_hand
+from ...grasp.robust import ROBUST_QUANTILE, Robustness, rank_robust
 from .state import SegmentGrasps
 
 NO_PLAN = "_Select a segment, then plan grasps on it._"
@@ -35,11 +36,33 @@ def _lift_text(e: ExecutionResult) -> str:
     return f"{verdict} (rose {1000 * e.lift.rise:.0f} mm, slipped {1000 * e.lift.slip:.0f} mm)"
 
 
+def _holds(r: Robustness) -> str:
+    """``holds <n>/<samples>``: on how many sample completions a grasp still has force closure."""
+    return f"holds {round(r.fraction * len(r.epsilons))}/{len(r.epsilons)}"
+
+
 def grasp_options(s: SegmentGrasps) -> dict[str, int]:
-    """The Grasp dropdown's entries for ``s``: ``#<rank>  ε <epsilon>`` -> index in ``s.grasps``."""
-    return {
-        f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)"): k for k, g in enumerate(s.grasps)
-    }
+    """The Grasp dropdown's entries for ``s``: ``#<planner rank>  ε <epsilon>`` (and ``· holds
+    <n>/<samples>`` once ranked by robustness) -> index in ``s.grasps``, in the planner's order or,
+    once ranked, most robust first. The number stays the planner's: it names the grasp's hand."""
+    order = range(len(s.grasps)) if s.robustness is None else rank_robust(s.robustness)
+    options = {}
+    for k in order:
+        g = s.grasps[k]
+        entry = f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)")
+        options[entry + ("" if s.robustness is None else f" · {_holds(s.robustness[k])}")] = k
+    return options
+
+
+def _robustness_line(scores: list[Robustness], k: int) -> str:
+    """Grasp ``k``'s robustness among ``scores``: its robust rank, on how many sample completions
+    it holds, and its epsilon's lower quantile over them."""
+    r = scores[k]
+    rank = rank_robust(scores).index(k) + 1
+    return (
+        f"**Robustness**: rank **{rank}** of {len(scores)} · **{_holds(r)}** sample completions "
+        f"({100 * r.fraction:.0f}%) · {100 * ROBUST_QUANTILE:.0f}% ε {r.epsilon_low:.4f}"
+    )
 
 
 def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | None) -> str:
@@ -55,6 +78,11 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if s.grasps:
         best = max(g.epsilon for g in s.grasps)
         lines.append(f"Colour: ε from red (0) to green (ε = {best:.3f}, the best); grey: no force closure.")
+    if s.robustness:
+        lines.append(
+            f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions: most robust "
+            f"first (the share of samples a grasp holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε)."
+        )
     if real_capture:
         lines.append("**No ground truth**: this is a real capture; grasps cannot be executed on the true object.")
     done = [e for e in s.executions if e is not None]
@@ -76,7 +104,9 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     text += (
         f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
         f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
-        f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})\n\n"
+        f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})"
+        + (f"  \n{_robustness_line(s.robustness, k)}" if s.robustness else "")
+        + "\n\n"
     )
     header = "| joint | planned |" + (" executed |\n|---|---:|---:|" if e is not None else "\n|---|---:|")
     rows = [

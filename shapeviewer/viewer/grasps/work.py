@@ -20,6 +20,8 @@ from .state import GraspJob, GraspJobError
 
 log = logging.getLogger(__name__)
 
+JOB_TITLES = {"plan": "planning", "execute": "execution", "rank": "ranking"}  # job kind -> what failed
+
 
 class GraspJobs:
     """Starts grasp jobs and shows their progress in the Grasps folder.
@@ -29,10 +31,19 @@ class GraspJobs:
         pool: the worker pool grasp jobs compute in.
         notify: tells the browsers about failures and a busy runner.
         set_status: the panel's status line (:data:`~..jobs.READY` when a job ends).
+        can_rank: whether there are grasps to rank (the listed segment has some).
     """
 
-    def __init__(self, panel: GraspPanel, pool: WorkerPool, notify: Notify, set_status: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        panel: GraspPanel,
+        pool: WorkerPool,
+        notify: Notify,
+        set_status: Callable[[str], None],
+        can_rank: Callable[[], bool],
+    ) -> None:
         self.panel = panel
+        self.can_rank = can_rank
         self.pool = pool
         self.notify = notify
         self.set_status = set_status
@@ -49,7 +60,7 @@ class GraspJobs:
         work: Callable[[GraspJob], object],
     ) -> GraspJob | None:
         """Run ``work(job)`` in a background thread unless a grasp job already runs (``wait``:
-        return once it has finished). ``kind``: ``plan`` or ``execute``."""
+        return once it has finished). ``kind``: one of :data:`JOB_TITLES`."""
         if not self.busy.acquire(blocking=False):
             self.notify(client, "Busy", "A grasp job is running: wait for it or press Cancel.", auto_close=3.0)
             return None
@@ -71,7 +82,7 @@ class GraspJobs:
                 job.error = f"{type(e).__name__}: {e}"
                 self.notify(
                     client,
-                    f"Grasp {'planning' if kind == 'plan' else 'execution'} failed",
+                    f"Grasp {JOB_TITLES[kind]} failed",
                     f"Segment {segment_id}: {e}",
                     "red",
                 )
@@ -119,11 +130,17 @@ class GraspJobs:
             self._last_progress = pct
             set_value(self.panel.progress, float(pct))
 
+    def refresh_rank(self, running: bool | None = None) -> None:
+        """Enable Rank by robustness when no job runs (``running``; None: ask) and there are grasps."""
+        self.panel.rank.disabled = (self.running() if running is None else running) or not self.can_rank()
+
     def _set_running(self, running: bool) -> None:
         """Buttons, progress bar and status while a job runs (and back when it ends)."""
         try:
             for b in self.panel.job_buttons:
                 b.disabled = running
+            # The job is not done yet when it ends here, so say whether one runs.
+            self.refresh_rank(running)
             self.panel.cancel.disabled = not running
             set_value(self.panel.progress, 0.0)
             self.panel.progress.visible = running

@@ -1,0 +1,66 @@
+"""Completion uncertainty in a real browser (issue 14): headless Debian Chromium (Playwright) ticks
+the Confidence layer and presses "Rank by robustness", and reads what the panel then shows.
+
+The app runs in this process: the test completes a segment and plans its grasps server-side (the
+clicks that do those are tested in ``test_browser.py``) and checks the scene and grasps there.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from helpers import (
+    browser_page,
+    browser_session,
+    checked,
+    click,
+    dropdown_value,
+    free_port,
+    needs_browser,
+    node,
+    page_text,
+    press,
+    wait_for_text,
+    wait_until,
+)
+
+pytestmark = pytest.mark.browser
+
+
+@needs_browser
+def test_confidence_checkbox_and_rank_by_robustness_button():
+    from shapeviewer.grasp.robust import rank_robust
+    from shapeviewer.viewer import ViewerApp
+
+    # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
+    viewer = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
+    try:
+        with browser_page(viewer) as page:
+            app = browser_session(viewer)  # the browser tab's own session
+            sid = max(app.scene.segments, key=lambda s: len(app.scene.points_world[s]))
+            assert app.complete(sid) is not None
+
+            # Ticking Confidence shades the completion and puts its figures in the stage panel.
+            click(page, page.get_by_role("checkbox", name="Confidence", exact=True), "the 'Confidence' checkbox")
+            wait_for_text(page, "confidence of the completion", timeout=60)
+            text = page_text(page)
+            assert "unseen side" in text and "are a guess" in text
+            assert checked(page, "Confidence") and node(app, f"/confidence/seg_{sid}") is not None
+
+            job = app.plan_grasps(sid, "barrett", "fast", 3, seed=0)
+            assert job is not None and job.error is None and job.result is not None and job.result.grasps
+            press(page, "Rank by robustness")  # waits until the button is enabled: there are grasps
+            job = wait_until(
+                lambda: app.grasps.job if app.grasps.job.kind == "rank" else None, 20, "the click to start ranking"
+            )
+            assert job.wait(180), "ranking did not finish"
+            assert job.error is None and job.result is not None
+            best = rank_robust(job.result)[0]
+            holds = f"holds {round(8 * job.result[best].fraction)}/8"
+            # The browser lists the most robust grasp first and describes it.
+            wait_for_text(page, f"Robustness: rank 1 of {len(job.result)} · {holds} sample completions", timeout=30)
+            assert "Ranked by robustness" in page_text(page)
+            shown = dropdown_value(page, "Grasp")
+            assert shown.startswith(f"#{best + 1} ") and shown.endswith(holds)
+    finally:
+        viewer.stop()
