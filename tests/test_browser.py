@@ -53,7 +53,7 @@ def test_click_segment_completes_it(tmp_path):
             sid, xy = target
             # The app records the completion once all its nodes are added.
             click_until(page, xy, lambda: sid in app.completions, f"the completion of segment {sid}")
-            for layer in ("fast_mesh", "cnn_input", "cnn_output"):
+            for layer in ("fast_mesh", "cnn_input"):
                 assert node(app, f"/{layer}/seg_{sid}") is not None
             assert app.selected == sid
             assert app.last_timings["click_to_mesh"] > 0

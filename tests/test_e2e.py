@@ -223,12 +223,13 @@ def test_click_a_segment_shows_cnn_grids_and_fast_mesh(walk):
 
     click_until(page, xy, fast_mesh_shown, f"the timings of segment {sid}'s completion")
     assert dropdown_value(page, "Segment").startswith(f"segment {sid} (")
-    for layer in ("cnn_input", "cnn_output", "fast_mesh"):
+    for layer in ("cnn_input", "fast_mesh"):
         assert scene_node(client, f"/{layer}/seg_{sid}") is not None, layer
-    # The CNN output is off by default: the user ticks it to see the completed grid.
+    # The CNN output is off by default: the user ticks it to see the completed grid (drawn then).
     assert checked(page, "CNN input") and checked(page, "Fast mesh") and not checked(page, "CNN output")
     click(page, page.get_by_role("checkbox", name="CNN output", exact=True), "the 'CNN output' checkbox")
     wait_until(lambda: scene_node(client, "/cnn_output").visible, 10, "the CNN output layer")
+    wait_until(lambda: scene_node(client, f"/cnn_output/seg_{sid}"), 10, "the CNN output's cubes")
     walk.capture_segment = sid
 
 

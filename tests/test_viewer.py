@@ -64,8 +64,14 @@ def test_complete_segment_adds_grids_and_mesh(app):
     c = app.complete(sid)
     assert c is not None and c.segment_id == sid
     assert app.selected == sid
-    for layer in ("cnn_input", "cnn_output", "fast_mesh"):
+    for layer in ("cnn_input", "fast_mesh"):
         assert node(app, f"/{layer}/seg_{sid}") is not None, layer
+    # The CNN output's layer starts hidden: its cubes are drawn once it is shown.
+    assert not app.panel.layers["cnn_output"].value and node(app, f"/cnn_output/seg_{sid}") is None
+    app.panel.layers["cnn_output"].value = True
+    out = node(app, f"/cnn_output/seg_{sid}")
+    assert out is not None and len(out.batched_positions) == len(surface_voxels(c.grid_out))
+    app.panel.layers["cnn_output"].value = False
     for k in ("segmentation", "voxelize", "cnn", "marching_cubes", "send", "click_to_mesh"):
         assert app.last_timings[k] > 0, k
     assert "click → mesh" in app.panel.timings.content

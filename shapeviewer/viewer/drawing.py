@@ -200,11 +200,13 @@ class PipelineDrawing:
     # ------------------------------------------------------------------------------------------
     # A completion
 
-    def draw_completion(self, scene: LoadedScene, c: Completion, shade_output: bool) -> None:
-        """Draw one completion's CNN input, CNN output and meshes in the world frame.
+    def draw_completion(self, scene: LoadedScene, c: Completion, shade_output: bool, show_output: bool) -> None:
+        """Draw one completion's CNN input, meshes and (``show_output``: its layer is on) CNN
+        output in the world frame.
 
         A new completion has no detailed or baseline mesh yet, so this also removes those of an
-        earlier completion of the same segment.
+        earlier completion of the same segment. The CNN output's cubes are a sixth of what a click
+        sends and their layer starts hidden, so they are drawn only once it is shown.
         """
         sid = c.segment_id
         color = np.asarray(scene.segments[sid].color)
@@ -214,7 +216,10 @@ class PipelineDrawing:
         self.draw_voxels(
             scene, f"/cnn_input/seg_{sid}", surface_voxels(c.grid_in), c, INPUT_VOXEL_FILL, shade(color, 0.55)
         )
-        self.draw_output(scene, c, shade_output)
+        if show_output:
+            self.draw_output(scene, c, shade_output)
+        else:
+            self.remove(f"/cnn_output/seg_{sid}")  # an earlier completion's: drawn again when shown
 
     def draw_mesh(self, scene: LoadedScene, kind: str, sid: int, mesh: trimesh.Trimesh | None) -> None:
         """Draw (or, when None, remove) segment ``sid``'s camera-frame mesh ``kind`` in the world frame."""

@@ -502,7 +502,9 @@ class Session:
 
     def _draw_completion(self, c: Completion) -> None:
         assert self.scene is not None  # ``c`` is a completion of it
-        self.drawing.draw_completion(self.scene, c, self.panel.shade_output.value)
+        self.drawing.draw_completion(
+            self.scene, c, self.panel.shade_output.value, self.panel.layers["cnn_output"].value
+        )
         self.drawing.draw_sample(self.scene, c.segment_id, None)  # a sample of the previous completion
         set_value(self.panel.sample, 0)
         if self.panel.layers["confidence"].value:

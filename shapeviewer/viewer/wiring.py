@@ -95,8 +95,10 @@ def wire_callbacks(app: Session) -> None:
             app.drawing.draw_cloud(app.scene, p.cloud_colors.value == "capture")
 
     @p.shade_output.on_update
+    @p.layers["cnn_output"].on_update
     def _(_event: viser.GuiEvent) -> None:
-        if app.scene is not None:  # there are completions only once there is a scene
+        # The CNN output is drawn only while its layer is shown (see PipelineDrawing.draw_completion).
+        if app.scene is not None and p.layers["cnn_output"].value:
             for c in list(app.completions.values()):
                 app.drawing.draw_output(app.scene, c, p.shade_output.value)
 
