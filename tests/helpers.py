@@ -133,6 +133,44 @@ def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] |
     return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
 
 
+def visible_segment(page, client, session, cam, order) -> tuple[int, tuple[float, float]] | None:
+    """The first segment of ``order`` that a click at its centroid on ``page``'s canvas picks (in
+    view, in front of the others, not under the panel): ``(segment id, page xy)``, or None.
+    ``session`` is the browser's viewer session, ``client`` its viser client and ``cam`` the
+    camera it reported."""
+    from shapeviewer.viewer.rays import ray_through
+
+    for sid in order:
+        centroid = session.segment_centroid_world(sid)
+        if session.pick(*ray_through(cam.position, centroid)) == sid:
+            xy = canvas_point(page, client, centroid)
+            if xy is not None:
+                return sid, xy
+    return None
+
+
+def load_exported_grasp(folder: Path, hand_urdf: Path, physics_client: int, index: int = 0) -> tuple[int, int]:
+    """Load an extracted pybullet scene export (``object.urdf``, ``grasps.json``) into pybullet
+    ``physics_client`` with grasp ``index``'s hand (``hand_urdf``) at its pose and its joints set:
+    ``(object body, hand body)``."""
+    import json
+
+    import pybullet as p
+
+    g = json.loads((folder / "grasps.json").read_text())["grasps"][index]
+    obj = p.loadURDF(str(folder / "object.urdf"), useFixedBase=True, physicsClientId=physics_client)
+    hand = p.loadURDF(
+        str(hand_urdf), g["position"], g["quaternion_xyzw"], useFixedBase=True, physicsClientId=physics_client
+    )
+    joints = {
+        p.getJointInfo(hand, i, physicsClientId=physics_client)[1].decode(): i
+        for i in range(p.getNumJoints(hand, physicsClientId=physics_client))
+    }
+    for name, q in zip(g["joint_names"], g["joint_values"]):
+        p.resetJointState(hand, joints[name], q, physicsClientId=physics_client)
+    return obj, hand
+
+
 def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = 45.0) -> None:
     """Click at ``xy`` until ``done()``: the canvas may not handle pointer events before its
     first frame."""

@@ -21,6 +21,7 @@ from helpers import (
     needs_browser,
     node,
     reported_camera,
+    visible_segment,
     wait_until,
 )
 
@@ -30,7 +31,6 @@ pytestmark = pytest.mark.browser
 @needs_browser
 def test_click_segment_completes_it(tmp_path):
     from shapeviewer.viewer import ViewerApp
-    from shapeviewer.viewer.rays import ray_through
 
     # A thin Cloud layer keeps the first software-rendered WebGL frame quick.
     viewer = ViewerApp(port=free_port(), seed=0, max_cloud_points=20_000)
@@ -41,14 +41,8 @@ def test_click_segment_completes_it(tmp_path):
             cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
             # Click the largest segment that is in view, not hidden behind another one and
             # not under the control panel.
-            target = None
-            for sid in sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s])):
-                centroid = app.segment_centroid_world(sid)
-                if app.pick(*ray_through(cam.position, centroid)) == sid:
-                    xy = canvas_point(page, client, centroid)
-                    if xy is not None:
-                        target = (sid, xy)
-                        break
+            order = sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s]))
+            target = visible_segment(page, client, app, cam, order)
             assert target is not None, "no segment is visible on the canvas"
             sid, xy = target
             # The app records the completion once all its nodes are added.

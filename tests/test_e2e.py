@@ -36,11 +36,9 @@ import trimesh
 
 from shapeviewer.evaluation.records import view_stem
 from shapeviewer.grasp.serialize import grasps_from_json
-from shapeviewer.viewer.rays import ray_through
 
 from helpers import (
     browser_page,
-    canvas_point,
     checked,
     choose,
     click,
@@ -48,11 +46,13 @@ from helpers import (
     dropdown_options,
     dropdown_value,
     free_port,
+    load_exported_grasp,
     needs_browser,
     page_shows,
     page_text,
     press,
     reported_camera,
+    visible_segment,
     wait_for_text,
     wait_until,
 )
@@ -207,14 +207,8 @@ def test_click_a_segment_shows_cnn_grids_and_fast_mesh(walk):
     session = session_of(walk.app, client)
     cam = settled_camera(client)
     # The largest segment (the mug) that is in view, in front of the others and not under the panel.
-    target = None
-    for sid in sorted(walk.capture_counts, key=lambda s: -walk.capture_counts[s]):
-        centroid = session.segment_centroid_world(sid)
-        if session.pick(*ray_through(cam.position, centroid)) == sid:
-            xy = canvas_point(page, client, centroid)
-            if xy is not None:
-                target = (sid, xy)
-                break
+    order = sorted(walk.capture_counts, key=lambda s: -walk.capture_counts[s])
+    target = visible_segment(page, client, session, cam, order)
     assert target is not None, "no segment of the capture is visible on the canvas"
     sid, xy = target
 
@@ -353,19 +347,11 @@ def test_grasp_exports_download_and_parse(walk, tmp_path):
     with zipfile.ZipFile(path) as z:
         assert {"object.obj", "object_collision.obj", "object.urdf", "grasps.json"} <= set(z.namelist())
         z.extractall(tmp_path)
-    g = json.loads((tmp_path / "grasps.json").read_text())["grasps"][0]
     urdf = next((tmp_path / "hands").glob("*.urdf"))
     c = p.connect(p.DIRECT)
     try:
-        obj = p.loadURDF(str(tmp_path / "object.urdf"), useFixedBase=True, physicsClientId=c)
-        hand = p.loadURDF(str(urdf), g["position"], g["quaternion_xyzw"], useFixedBase=True, physicsClientId=c)
+        obj, hand = load_exported_grasp(tmp_path, urdf, c)
         assert obj >= 0 and hand >= 0 and p.getNumJoints(hand, physicsClientId=c) > 0
-        index = {
-            p.getJointInfo(hand, i, physicsClientId=c)[1].decode(): i
-            for i in range(p.getNumJoints(hand, physicsClientId=c))
-        }
-        for name, q in zip(g["joint_names"], g["joint_values"]):
-            p.resetJointState(hand, index[name], q, physicsClientId=c)
         # The exported grasp touches the exported object, as planned.
         rows = p.getClosestPoints(hand, obj, 0.005, physicsClientId=c)
         assert rows, "the exported hand is nowhere near the exported object"

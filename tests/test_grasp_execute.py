@@ -14,6 +14,8 @@ from shapeviewer.grasp import serialize as X
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import PlanSettings, plan
 
+from helpers import load_exported_grasp
+
 SETTINGS = PlanSettings(samples=512, chains=32, steps=60, simulate=20)  # enough for a box
 
 
@@ -118,21 +120,7 @@ def test_scene_zip_loads_in_pybullet(grasps, box, tmp_path):
         z.extractall(tmp_path)
     c = p.connect(p.DIRECT)
     try:
-        obj = p.loadURDF(str(tmp_path / "object.urdf"), useFixedBase=True, physicsClientId=c)
-        g = json.loads((tmp_path / "grasps.json").read_text())["grasps"][0]
-        hand = p.loadURDF(
-            str(tmp_path / "hands" / "barrett_bh8_280.urdf"),
-            g["position"],
-            g["quaternion_xyzw"],
-            useFixedBase=True,
-            physicsClientId=c,
-        )
-        index = {
-            p.getJointInfo(hand, i, physicsClientId=c)[1].decode(): i
-            for i in range(p.getNumJoints(hand, physicsClientId=c))
-        }
-        for name, q in zip(g["joint_names"], g["joint_values"]):
-            p.resetJointState(hand, index[name], q, physicsClientId=c)
+        obj, hand = load_exported_grasp(tmp_path, tmp_path / "hands" / "barrett_bh8_280.urdf", c)
         rows = p.getClosestPoints(hand, obj, 0.002, physicsClientId=c)
         # The exported grasp touches the exported object, as planned.
         assert rows and min(r[8] for r in rows) > -0.001
