@@ -121,7 +121,8 @@ class JobQueue:
         the session closed while the job waited."""
         with self._count:
             full = self._queued > self.max_waiting
-            if not full and not self.closed.is_set():
+            admitted = not full and not self.closed.is_set()
+            if admitted:
                 self._queued += 1
         if full:
             self.notify(
@@ -132,7 +133,7 @@ class JobQueue:
             )
             yield False
             return
-        if self.closed.is_set():
+        if not admitted:  # the session closed
             yield False
             return
         try:

@@ -299,21 +299,15 @@ class DatasetTab:
     # ------------------------------------------------------------------------------------------
     # Helpers
 
-    def _open(self, results: str | Path | None) -> None:
+    def _open(self, results: Path | None) -> None:
         if results is None:
             self.c.status.content = (
                 "_No results store._ Start the viewer with `--results DIR` (a folder written by "
                 "`shapeviewer evaluate`)."
             )
             return
-        if self.build is not None:  # the sample store: may not exist yet (the build writes it)
-            self.store = ResultsStore(results)
-            self.refresh_index()
-            return
-        root = Path(results).expanduser()
-        if not root.is_dir():
-            raise FileNotFoundError(f"results folder not found: {root}")
-        self.store = ResultsStore(root)
+        # The app has checked the folder; the sample store's may not exist yet (its build writes it).
+        self.store = ResultsStore(results)
         self.refresh_index()
 
     def _status_text(self) -> str:
