@@ -77,6 +77,31 @@ def headless_session(**options) -> Iterator:
         viewer.stop()
 
 
+@contextlib.contextmanager
+def job_running(session, timeout: float = 60.0) -> Iterator[None]:
+    """A job of viewer ``session`` that runs, holding its job queue, until the block ends."""
+    import threading
+
+    release, running = threading.Event(), threading.Event()
+    admitted: list[bool] = []
+
+    def hold() -> None:
+        with session.jobs.take(None) as ok:
+            admitted.append(ok)
+            running.set()
+            if ok:
+                release.wait(timeout)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        assert running.wait(10) and admitted == [True], "the job did not start"
+        yield
+    finally:
+        release.set()
+        holder.join(timeout)
+
+
 def browser_session(viewer, timeout: float = 60.0):
     """The session of the (first) browser connected to ``viewer``, once it has its scene."""
 

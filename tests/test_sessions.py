@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import CHROMIUM, CHROMIUM_ARGS, free_port, needs_browser, node, sync_playwright, wait_until
+from helpers import CHROMIUM, CHROMIUM_ARGS, free_port, job_running, needs_browser, node, sync_playwright, wait_until
 
 CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
@@ -82,25 +82,11 @@ def test_two_tabs_keep_their_own_scene_and_jobs(tmp_path):
                 assert viewer.server.scene.get_handle_by_name(f"/fast_mesh/seg_{ca.segment_id}") is None
 
                 # A long job in tab A does not hold up a click in tab B.
-                release, running = threading.Event(), threading.Event()
-
-                def long_job() -> None:
-                    with a.jobs.take(None) as ok:
-                        assert ok
-                        running.set()
-                        release.wait(60)
-
-                holder = threading.Thread(target=long_job)
-                holder.start()
-                try:
-                    assert running.wait(10)
+                with job_running(a):
                     t0 = time.perf_counter()
                     assert b.complete(largest(b)) is not None
                     assert time.perf_counter() - t0 < 30
                     assert a.jobs.busy  # still running
-                finally:
-                    release.set()
-                    holder.join(30)
                 time.sleep(1)
                 pages[0].screenshot(path=str(tmp_path / "tab_a.png"), timeout=120_000)
                 pages[1].screenshot(path=str(tmp_path / "tab_b.png"), timeout=120_000)

@@ -14,7 +14,7 @@ from shapeviewer.viewer.rays import first_hit, project_to_pixels, ray_through
 from shapeviewer.viewer.session import Session
 from shapeviewer.viewer.visuals import surface_voxels
 
-from helpers import headless_session, node
+from helpers import headless_session, job_running, node
 
 
 @pytest.fixture(scope="module")
@@ -117,30 +117,20 @@ def test_a_full_job_queue_answers_at_once_and_the_queue_drains(app):
     """While a job runs, two more may wait; the next is refused at once with a message."""
     import threading
 
-    release, running = threading.Event(), threading.Event()
-
-    def long_job() -> None:
-        with app.jobs.take(None) as ok:
-            assert ok
-            running.set()
-            release.wait(30)
-
-    waiting = [threading.Thread(target=long_job)]
-    waiting[0].start()
-    assert running.wait(10)
     sid = next(iter(app.scene.segments))
     results: list = []
-    for _ in range(app.jobs.max_waiting):
-        t = threading.Thread(target=lambda: results.append(app.complete(sid)))
-        t.start()
-        waiting.append(t)
-    time.sleep(0.3)
-    app.last_error = None
-    t0 = time.perf_counter()
-    assert app.complete(sid) is None  # the queue is full: refused without waiting
-    assert time.perf_counter() - t0 < 5
-    assert app.panel.complete.disabled  # the running job holds the buttons
-    release.set()
+    waiting = []
+    with job_running(app, timeout=30):
+        for _ in range(app.jobs.max_waiting):
+            t = threading.Thread(target=lambda: results.append(app.complete(sid)))
+            t.start()
+            waiting.append(t)
+        time.sleep(0.3)
+        app.last_error = None
+        t0 = time.perf_counter()
+        assert app.complete(sid) is None  # the queue is full: refused without waiting
+        assert time.perf_counter() - t0 < 5
+        assert app.panel.complete.disabled  # the running job holds the buttons
     for t in waiting:
         t.join(60)
     assert len(results) == app.jobs.max_waiting and all(c is not None for c in results)
