@@ -205,7 +205,7 @@ class TrainConfig:
     seed: int = 0
     width: int | None = None  # unet3d width (None = the architecture's default)
     in_channels: int = 3  # unet3d: 1 = occupancy only (the paper), 3 = with the context channels
-    init: str | None = None  # weights to start from (a 1-channel unet3d is widened, new inputs at zero)
+    init: str | None = None  # weights to start from (a narrower network is widened, see warm_start)
 
 
 def _arch_kwargs(cfg: TrainConfig) -> dict:
@@ -215,15 +215,21 @@ def _arch_kwargs(cfg: TrainConfig) -> dict:
 
 
 def warm_start(net: torch.nn.Module, weights: str | Path) -> None:
-    """Load ``weights`` into ``net``; a first convolution with fewer input channels (a 1-channel
-    unet3d into a 3-channel one) fills the new channels' weights with zeros, so the widened network
-    starts out computing exactly what the old one did."""
+    """Load ``weights`` into ``net``, which may be wider than the network they were trained for
+    (a 1-channel unet3d into a 3-channel one, or width 16 into width 24).
+
+    Each weight keeps its old block; the old units' weights from new inputs are zero and the new
+    units keep ``net``'s fresh random weights, so the widened network starts out computing exactly
+    what the old one did, and its new units still receive gradients (their outputs are not zero)."""
     blob = torch.load(weights, map_location="cpu", weights_only=True)
     state = net.state_dict()
     for k, v in blob["state_dict"].items():
-        if k in state and state[k].shape != v.shape and v.ndim == 5 and v.shape[1] < state[k].shape[1]:
-            wide = torch.zeros_like(state[k])
-            wide[:, : v.shape[1]] = v
+        if k in state and state[k].shape != v.shape:
+            if v.ndim != state[k].ndim or any(o > n for o, n in zip(v.shape, state[k].shape)):
+                raise ValueError(f"{weights}: {k} has shape {tuple(v.shape)}, larger than {tuple(state[k].shape)}")
+            wide = state[k].clone() if v.ndim > 1 else torch.zeros_like(state[k])
+            wide[: v.shape[0]] = 0
+            wide[tuple(slice(0, n) for n in v.shape)] = v
             v = wide
         state[k] = v
     net.load_state_dict(state)

@@ -85,6 +85,24 @@ def test_warm_start_widens_a_one_channel_network_without_changing_it():
     assert torch.allclose(a, b, atol=1e-5)
 
 
+def test_warm_start_widens_a_narrow_network_and_its_new_units_learn(tmp_path):
+    from shapeviewer.model import UNet3D, network_input
+
+    torch.manual_seed(0)
+    old = UNet3D(width=8, in_channels=3)
+    torch.save({"arch": "unet3d", "state_dict": old.state_dict(), "meta": {}}, tmp_path / "old.pt")
+    new = UNet3D(width=12, in_channels=3)
+    warm_start(new, tmp_path / "old.pt")
+    x = network_input(np.random.default_rng(0).random((2, 40, 40, 40)) < 0.2, None, 3)
+    with torch.no_grad():
+        assert torch.allclose(old(x), new(x), atol=1e-5)
+    bce_loss(new(x), torch.ones(2, 1, 40, 40, 40)).backward()
+    grad = new.dec1[0].weight.grad
+    assert grad is not None and grad[:8, 8:].abs().sum() > 0  # old units learn to read the new ones
+    with pytest.raises(ValueError, match="larger than"):
+        warm_start(UNet3D(width=4, in_channels=3), tmp_path / "old.pt")
+
+
 def test_loss_is_the_papers_summed_bce():
     logits = torch.zeros(2, 1, 40, 40, 40)
     target = torch.ones(2, 1, 40, 40, 40)
