@@ -30,9 +30,10 @@ to its page's websocket receiving the mesh (seen through Playwright), not to the
 Reported: sessions, actions, errors (timeouts, refusals ("Busy"), red notifications, clicks that
 hit no segment), results shown in the WRONG session (a fast mesh or grasps that a session received
 for an action it did not do), click -> own fast mesh p50/p95/max, and the server's memory (RSS of
-its process): at start, the baseline (after warm-up sessions, as many as the run's, have clicked
-a few segments and planned once at the same time, and gone), the peak while the sessions run, and
-``--settle`` seconds after they all closed.
+its process and the grasp worker processes it started): at start, the baseline (after warm-up
+sessions, as many as the run's, have clicked a few segments and planned once at the same time, and
+gone), the peak while the sessions run, and ``--settle`` seconds after they all closed; and whether
+Ctrl-C stopped it and every process it started (zombies awaiting init excepted).
 
 Targets (issue 13, 5 sessions x 2 minutes with one planning grasps): 0 errors, 0 results in the
 wrong session, click -> own fast mesh p95 <= 0.5 s (lightweight sessions), memory back to the
@@ -96,8 +97,32 @@ ERROR_KINDS = ("timeout", "refused", "error", "missed", "not ready")
 # The server and its memory
 
 
-def rss_mb(pid: int) -> float | None:
-    """Resident memory of process ``pid`` (MB), or None when it has gone."""
+def descendants(pid: int) -> list[int]:
+    """The processes ``pid`` started, and theirs (the server's grasp workers)."""
+    found: list[int] = []
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return found
+    for task in tasks:
+        try:
+            children = [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+        for c in children:
+            found += [c, *descendants(c)]
+    return found
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie waits only for init to reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def _own_rss_mb(pid: int) -> float | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith("VmRSS:"):
@@ -105,6 +130,14 @@ def rss_mb(pid: int) -> float | None:
     except OSError:
         return None
     return None
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of process ``pid`` and every process it started (MB), or None when it has gone."""
+    own = _own_rss_mb(pid)
+    if own is None:
+        return None
+    return own + sum(filter(None, map(_own_rss_mb, descendants(pid))))
 
 
 class Server:
@@ -120,6 +153,7 @@ class Server:
             )
         self.pid = self.proc.pid
         self.stop_seconds: float | None = None
+        self.children_left: list[int] = []  # processes it started that outlived it
 
     def wait_ready(self, timeout: float) -> str:
         """The URL the server prints once it serves (raises if it exits or takes longer than ``timeout`` s)."""
@@ -143,11 +177,13 @@ class Server:
         """Ctrl-C (SIGINT) to the server, SIGKILL if it has not exited within ``timeout`` s."""
         if self.proc.poll() is not None:
             return
+        children = descendants(self.pid)
         t0 = time.monotonic()
         self.proc.send_signal(signal.SIGINT)
         try:
             self.proc.wait(timeout)
             self.stop_seconds = time.monotonic() - t0
+            self.children_left = [c for c in children if running(c)]
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(5)
@@ -769,7 +805,11 @@ def markdown(r: dict[str, Any]) -> str:
         f"| {verdict('memory_after_vs_baseline')} |",
     ]
     if r["info"].get("server_stop_seconds") is not None:
-        lines.append(f"| server stopped after Ctrl-C (SIGINT) in | {r['info']['server_stop_seconds']:.1f} s | | |")
+        left = r["info"].get("server_children_left", [])
+        lines.append(
+            f"| server stopped after Ctrl-C (SIGINT) in | {r['info']['server_stop_seconds']:.1f} s, "
+            f"{len(left)} child process(es) left | | |"
+        )
     lines += [
         "",
         "| session | clicks | plans | errors | wrong-session results | click -> mesh p50 / p95 / max | outcomes |",
@@ -828,6 +868,7 @@ async def main_async(args) -> dict[str, Any]:
         if server is not None:
             server.stop()  # blocking: also when the run is interrupted
             info["server_stop_seconds"] = server.stop_seconds
+            info["server_children_left"] = server.children_left
             print(f"server log: {server.log}", file=sys.stderr)
     return summarize(stats, memory, info, args, url)
 

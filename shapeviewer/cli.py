@@ -478,7 +478,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=[1, 3],
         help="unet3d inputs: 1 = occupancy (the paper), 3 = + seen free space and support plane",
     )
-    s.add_argument("--init", default=None, help="weights to start from (a narrower unet3d, or one with fewer inputs, is widened)")
+    s.add_argument(
+        "--init", default=None, help="weights to start from (a narrower unet3d, or one with fewer inputs, is widened)"
+    )
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)
 

@@ -10,6 +10,7 @@ import zipfile
 
 import numpy as np
 import pytest
+import trimesh
 
 from shapeviewer.camera import transform_points
 from shapeviewer.grasp.robust import rank_robust, robustness
@@ -101,8 +102,8 @@ def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
         frame = node(app, f"/grasps/seg_{sid}/g{k}")
         assert frame is not None, k
         assert np.allclose(frame.position, g.T_world_palm[:3, 3])
-        for link in ("palm", "f1_proximal", "f2_distal", "f3_distal"):
-            assert node(app, f"/grasps/seg_{sid}/g{k}/hand/{link}") is not None, (k, link)
+        for part in ("palm", "fingers"):
+            assert node(app, f"/grasps/seg_{sid}/g{k}/hand/{part}") is not None, (k, part)
         assert node(app, f"/grasps/seg_{sid}/g{k}/skeleton") is not None
         # The palm is at the object, not somewhere else in the scene.
         gap = np.min(np.linalg.norm(planned.mesh_world.vertices - g.position, axis=1))
@@ -110,7 +111,7 @@ def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
     # Coloured by quality: the best grasp's fingers are the colour epsilon_colors gives it.
     colours = G.epsilon_colors([g.epsilon for g in planned.grasps])
     for k in range(len(planned.grasps)):
-        assert tuple(node(app, f"/grasps/seg_{sid}/g{k}/hand/f1_proximal").color) == colours[k]
+        assert tuple(node(app, f"/grasps/seg_{sid}/g{k}/hand/fingers").color) == colours[k]
     # The selected (best) grasp is a solid hand, the others stick figures.
     assert node(app, f"/grasps/seg_{sid}/g0/hand").visible and not node(app, f"/grasps/seg_{sid}/g0/skeleton").visible
     # Listed, the best one selected and described, the layer on.
@@ -208,7 +209,7 @@ def test_execute_on_ground_truth(app, planned):
     # The planned hand steps back to a stick figure; the layers that would hide the object go off.
     assert node(app, f"/grasps/seg_{sid}/g0/skeleton").visible and not node(app, f"/grasps/seg_{sid}/g0/hand").visible
     assert not app.panel.layers["fast_mesh"].value and not app.panel.layers["cnn_input"].value
-    assert node(app, f"/grasps/seg_{sid}/exec_g0/hand/f1_proximal").color == G.EXECUTED_COLOR
+    assert node(app, f"/grasps/seg_{sid}/exec_g0/hand/fingers").color == G.EXECUTED_COLOR
     info = app.grasps.panel.info.content
     assert f"joint error **{e.joint_error:.2f}°**" in info and f"pose error **{e.pose_error:.1f} mm**" in info
     assert ("lifted" in info) or ("dropped" in info)
@@ -297,14 +298,12 @@ def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(
     gone = Gone()
     monkeypatch.setattr(app.audience.server, "get_clients", lambda: {gone.client_id: gone})
 
-    def broken(*args, **kwargs):
-        raise RuntimeError("pybullet exploded")
-
-    monkeypatch.setattr(G.controller, "execute_grasps", broken)  # where the controller calls it
+    # A true object that breaks execution in the worker process (a mesh without faces).
+    monkeypatch.setattr(G.controller, "ground_truth", lambda capture, segment: ("broken", trimesh.Trimesh()))
     app.last_error = None
     job = app.execute_grasps(planned.segment_id, [0], client=gone, lift=False)
-    assert job is not None and "pybullet exploded" in job.error
-    assert "failed" in app.last_error and "pybullet exploded" in app.last_error
+    assert job is not None and job.error and "ValueError" in job.error
+    assert "Grasp execution failed" in app.last_error and f"Segment {planned.segment_id}" in app.last_error
     # The app carries on: the lock is free and the buttons are back.
     assert not app.grasps.panel.execute.disabled and app.grasps.jobs.busy.acquire(blocking=False)
     app.grasps.jobs.busy.release()

@@ -30,6 +30,7 @@ from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import Hand, get_hand, set_joint_positions
 from shapeviewer.grasp.plan import BACK_OFF, approach_and_close, object_contacts
 from shapeviewer.grasp.quality import max_radius
+from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, HandState
 from shapeviewer.grasp.world import GraspWorld
 
@@ -101,10 +102,13 @@ def execute_grasps(
     table: bool = True,
     lift: bool = False,
     shake: bool = False,
+    progress: ProgressFn | None = None,
+    cancel: CancelFn | None = None,
 ) -> list[ExecutionResult]:
     """Execute every grasp on ``true_mesh_world`` (world frame) with the protocol of SPEC
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
-    executed state."""
+    executed state. ``progress(fraction)`` reports 0..1 (the lift tests are most of the work);
+    ``cancel()`` is asked before each lift test, and those not run keep ``lift`` None."""
     by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)
@@ -137,9 +141,16 @@ def execute_grasps(
                     approach_contact=approach.contact,
                 )
     results = [by_index[i] for i in range(len(grasps))]  # every grasp's hand had its world
+    share = 0.1 if lift and results else 1.0  # of the work, executing them
+    if progress is not None:
+        progress(share)
     if lift:
-        for r in results:
+        for j, r in enumerate(results):
+            if cancel is not None and cancel():
+                break
             r.lift = lift_test(r, true_mesh_world, table=table, shake=shake)
+            if progress is not None:
+                progress(share + (1 - share) * (j + 1) / len(results))
     return results
 
 

@@ -26,6 +26,7 @@ from ..camera import Intrinsics
 from ..capture import Capture, load_capture
 from ..evaluation.run import sample_store_complete, sample_store_dir
 from ..model import load_completer, training_curves
+from ..processes import ProcessPool
 from . import panel as P
 from .audience import Audience
 from .dataset import DEFAULT, SampleBuild
@@ -133,7 +134,7 @@ class ViewerApp:
                 first_scene=lambda: self.first_scene(intrinsics),
                 default_scene=self.default_scene,
                 pool=WorkerPool(workers),
-                grasp_pool=WorkerPool(max(1, workers // 2), name="viewer-grasp"),
+                grasp_pool=ProcessPool(max(1, workers // 2), name="viewer-grasp"),
                 intrinsics=intrinsics,
                 data_dir=data_path,
                 max_cloud_points=max_cloud_points,

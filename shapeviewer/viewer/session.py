@@ -39,6 +39,7 @@ from ..capture import Capture, CaptureError, load_capture
 from ..grasp.robust import sample_meshes
 from ..model import Completer
 from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
+from ..processes import ProcessPool
 from ..reconstruct import fast_mesh
 from . import panel as P
 from . import sources
@@ -70,7 +71,7 @@ class SessionResources:
         first_scene: the scene a new session starts with (``--cloud`` or the default scene).
         default_scene: the generated tabletop scene of a seed (cached).
         pool: the worker pool every session's jobs compute in.
-        grasp_pool: the (smaller) pool grasp planning and execution run in.
+        grasp_pool: the (smaller) set of worker processes grasp planning, execution and ranking run in.
         intrinsics: camera intrinsics for uploaded depth images (None: ask / assume).
         data_dir: the server folder browsers may load captures from (None: uploads only).
         max_upload_bytes: the upload cap.
@@ -85,7 +86,7 @@ class SessionResources:
     first_scene: Callable[[], LoadedScene]
     default_scene: Callable[[int], LoadedScene]
     pool: WorkerPool
-    grasp_pool: WorkerPool
+    grasp_pool: ProcessPool
     intrinsics: Intrinsics | None = None
     data_dir: Path | None = None
     max_upload_bytes: int = P.MAX_UPLOAD_MB * 1024 * 1024

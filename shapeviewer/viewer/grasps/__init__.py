@@ -5,7 +5,7 @@ completion's sample completions they hold on (issue 14), export them.
 Frames: everything here is in the viewer's WORLD frame (metres, z up, table top z = 0). A segment's
 mesh (camera frame on its :class:`~shapeviewer.pipeline.Completion`) is mapped with
 ``scene.T_world_cam`` before planning; a grasp's ``T_world_palm`` places the palm frame, in which
-:func:`~shapeviewer.grasp.hands.hand_meshes` gives the hand's links.
+:func:`~.drawing.hand_solids` gives the hand's palm and fingers.
 
 Jobs: planning, execution and ranking run in a background thread, one grasp job per session at a time,
 outside the session's job queue, so the rest of the viewer keeps working meanwhile; they compute

@@ -14,14 +14,15 @@ import numpy as np
 import trimesh
 import viser
 
-from ...grasp.execute import ExecutionResult, execute_grasps, lift_test
+from ...grasp.execute import ExecutionResult, execute_grasps
 from ...grasp.hands import HAND_NAMES
 from ...grasp.plan import plan
 from ...grasp.robust import ROBUST_QUANTILE, Robustness, RobustnessCancelled, rank_robust, robustness
 from ...grasp.serialize import grasps_to_json, scene_zip
+from ...processes import ProcessPool
 from ..audience import Audience
 from ..gui import set_value
-from ..jobs import Notify, WorkerPool, send_download
+from ..jobs import Notify, send_download
 from ..state import MESH_KINDS, LoadedScene
 from .controls import DEFAULT_GRASPS, MAX_GRASPS, NO_GRASP, build_grasp_panel
 from .drawing import GraspDrawing
@@ -67,11 +68,11 @@ class GraspController:
         audience: the browser tab (or every browser) of the session: the Grasps folder goes in its
             GUI, the hands in its scene.
         host: see :class:`GraspHost`.
-        pool: the worker pool grasp jobs compute in (shared by the sessions).
+        pool: the worker processes grasp jobs compute in (shared by the sessions).
         order: where the Grasps folder goes among the panel's folders.
     """
 
-    def __init__(self, audience: Audience, host: GraspHost, pool: WorkerPool, order: float | None = None) -> None:
+    def __init__(self, audience: Audience, host: GraspHost, pool: ProcessPool, order: float | None = None) -> None:
         self.audience = audience
         self.host = host
         self.panel = build_grasp_panel(audience.gui, order)
@@ -222,15 +223,8 @@ class GraspController:
         table = bool(scene.capture.objects) or scene.segmentation.plane_cam is not None
         self.host.set_status(f"_Planning {n_grasps} {hand} grasps on segment {segment_id}..._")
         t0 = time.perf_counter()
-        result = plan(
-            mesh_world,
-            hand=hand,
-            n_grasps=n_grasps,
-            seed=seed,
-            table=table,
-            budget_seconds=budget_seconds,
-            progress=self.jobs.progress,
-            cancel=job.cancel_event.is_set,
+        result = self.jobs.compute(
+            job, plan, mesh_world, hand=hand, n_grasps=n_grasps, seed=seed, table=table, budget_seconds=budget_seconds
         )
         seconds = time.perf_counter() - t0
         if result.stats.cancelled or job.cancel_event.is_set():
@@ -278,14 +272,9 @@ class GraspController:
         name, truth_world = truth
         sid = s.segment_id
         self.host.set_status(f"_Executing {len(picked)} grasp(s) of segment {sid} on {name}..._")
-        results = execute_grasps([s.grasps[i] for i in picked], truth_world, table=s.table, lift=False)
-        self.jobs.progress(0.1 if lift else 1.0)
-        if lift:
-            for j, r in enumerate(results):
-                if job.cancel_event.is_set():
-                    break
-                r.lift = lift_test(r, truth_world, table=s.table)
-                self.jobs.progress(0.1 + 0.9 * (j + 1) / len(results))
+        results = self.jobs.compute(
+            job, execute_grasps, [s.grasps[i] for i in picked], truth_world, table=s.table, lift=lift
+        )
         with self._state:
             if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
                 return results
@@ -312,14 +301,7 @@ class GraspController:
             raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
         self.host.set_status(f"_Re-closing {len(s.grasps)} grasps on {len(samples)} sample completions..._")
         try:
-            scores = robustness(
-                s.grasps,
-                samples,
-                s.mesh_world,
-                table=s.table,
-                progress=self.jobs.progress,
-                cancel=job.cancel_event.is_set,
-            )
+            scores = self.jobs.compute(job, robustness, s.grasps, samples, s.mesh_world, table=s.table)
         except RobustnessCancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None

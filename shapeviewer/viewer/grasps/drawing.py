@@ -1,9 +1,9 @@
 """The grasps' scene nodes (layer ``grasps``), in the viewer's WORLD frame (metres, z up).
 
 - ``/grasps/seg_<id>``: one frame per segment with grasps;
-- ``/grasps/seg_<id>/g<k>``: a frame at grasp k's ``T_world_palm``, its children ``hand/<link>``
-  the hand's links in the palm frame and ``skeleton`` its stick figure, coloured by epsilon
-  (:func:`epsilon_colors`);
+- ``/grasps/seg_<id>/g<k>``: a frame at grasp k's ``T_world_palm``, its children ``hand/palm`` and
+  ``hand/fingers`` (the palm link and every other link, each one mesh in the palm frame) and
+  ``skeleton`` its stick figure, coloured by epsilon (:func:`epsilon_colors`);
 - ``/grasps/seg_<id>/truth``: the true object, translucent, once a grasp was executed on it;
 - ``/grasps/seg_<id>/exec_g<k>``: the hand as executed on the true object (blue, translucent).
 
@@ -13,6 +13,7 @@ the grasps are without hiding the object the way twenty solid (or translucent) h
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ import numpy as np
 import viser
 
 from ...camera import transform_points
-from ...grasp.hands import Hand, get_hand, hand_meshes
+from ...grasp.hands import Hand, get_hand
 from ..audience import Audience
 from ..rays import first_hit, sample_segments
 from ..visuals import shade
@@ -59,6 +60,35 @@ def _rounded_rgb(c: np.ndarray) -> tuple[int, int, int]:
     return r, g, b
 
 
+@functools.cache
+def _visual_parts(hand_name: str) -> tuple[tuple[str, np.ndarray, np.ndarray], ...]:
+    """The hand's visual elements as ``(link, vertices in the link frame (m), faces)``, made once."""
+    hand = get_hand(hand_name)
+    parts = []
+    for link, geoms in hand.model.visuals.items():
+        for g in geoms:
+            m = g.mesh()
+            parts.append((link, transform_points(g.T_link_geom, m.vertices), np.asarray(m.faces, np.uint32)))
+    return tuple(parts)
+
+
+def hand_solids(hand: Hand, joints: Sequence[float]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The hand at ``joints`` as two meshes, ``"palm"`` (its palm link) and ``"fingers"`` (every
+    other link): ``(vertices (N, 3) float32 in the palm frame (m), faces (M, 3) uint32)``.
+    Two meshes instead of one per link: drawing twenty hands stays a few scene messages each."""
+    poses = hand.link_poses(joints)
+    groups: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {"palm": ([], []), "fingers": ([], [])}
+    for link, vertices, faces in _visual_parts(hand.name):
+        vs, fs = groups["palm" if link == hand.palm_link else "fingers"]
+        fs.append(faces + sum(len(v) for v in vs))
+        vs.append(transform_points(poses[link], vertices))
+    return {
+        key: (np.vstack(vs).astype(np.float32), np.vstack(fs).astype(np.uint32))
+        for key, (vs, fs) in groups.items()
+        if vs
+    }
+
+
 def hand_skeleton(hand: Hand, joints: Sequence[float]) -> np.ndarray:
     """A stick figure of the hand at ``joints``: (N, 2, 3) line segments in the palm frame (metres).
 
@@ -69,10 +99,7 @@ def hand_skeleton(hand: Hand, joints: Sequence[float]) -> np.ndarray:
     poses = hand.link_poses(joints)
 
     def visual_points(link: str) -> np.ndarray:
-        pts = [
-            g.mesh().vertices @ (poses[link] @ g.T_link_geom)[:3, :3].T + (poses[link] @ g.T_link_geom)[:3, 3]
-            for g in hand.model.visuals.get(link, ())
-        ]
+        pts = [transform_points(poses[link], v) for part, v, _ in _visual_parts(hand.name) if part == link]
         return np.vstack(pts) if pts else poses[link][None, :3, 3]
 
     palm = visual_points(hand.palm_link)
@@ -175,8 +202,8 @@ class GraspDrawing:
         opacity: float | None,
     ) -> None:
         """Grasp ``k``'s hand at ``T_world_palm`` (world) with ``joints`` (replacing an earlier drawing
-        of it): a palm frame, under it ``hand/<link>`` meshes in the palm frame and, for a planned
-        grasp, the ``skeleton`` stick figure; both in ``color``."""
+        of it): a palm frame, under it the ``hand/palm`` and ``hand/fingers`` meshes in the palm
+        frame and, for a planned grasp, the ``skeleton`` stick figure; both in ``color``."""
         key = f"exec_g{k}" if executed else f"g{k}"
         old = self._hands.pop((sid, key), None)
         if old is not None:
@@ -191,17 +218,13 @@ class GraspDrawing:
         )
         solid = scene.add_frame(f"{name}/hand", show_axes=False)
         q = [joints[n] for n in hand.joint_names]
-        parts = [(link, i) for link, geoms in hand.model.visuals.items() for i in range(len(geoms))]
-        for (link, i), (mesh, T) in zip(parts, hand_meshes(hand, q)):
-            rgb = shade(np.asarray(color), PALM_SHADE) if link == hand.palm_link else color
+        for part, (vertices, faces) in hand_solids(hand, q).items():
             scene.add_mesh_simple(
-                f"{name}/hand/{link}" + (f"_{i}" if i else ""),
-                np.asarray(mesh.vertices, np.float32),
-                np.asarray(mesh.faces, np.uint32),
-                color=rgb,
+                f"{name}/hand/{part}",
+                vertices,
+                faces,
+                color=shade(np.asarray(color), PALM_SHADE) if part == "palm" else color,
                 opacity=opacity,
-                position=T[:3, 3],
-                wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz,
                 cast_shadow=False,
                 receive_shadow=False,
             )

@@ -1,7 +1,8 @@
 """Running a session's grasp jobs: one at a time, each in a background thread, outside the
 session's job queue (:class:`~..jobs.JobQueue`), so the rest of the viewer keeps working meanwhile.
-Planning is the heaviest job there is, so it computes in its own small :class:`~..jobs.WorkerPool`
-shared by every session: other users' clicks keep the main pool's workers.
+Planning, executing and ranking are the heaviest jobs there are and hold the GIL for seconds, so
+they compute in worker processes (:class:`~shapeviewer.processes.ProcessPool`) shared by every session: other
+users' clicks keep the server's interpreter and the main pool's workers.
 """
 
 from __future__ import annotations
@@ -9,16 +10,19 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 import viser
 
+from ...processes import JobCancelled, ProcessPool
 from ..gui import set_value
-from ..jobs import READY, Notify, WorkerPool
+from ..jobs import READY, Notify
 from .controls import GraspPanel
 from .state import GraspJob, GraspJobError
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 JOB_TITLES = {"plan": "planning", "execute": "execution", "rank": "ranking"}  # job kind -> what failed
 
@@ -28,7 +32,7 @@ class GraspJobs:
 
     Args:
         panel: the Grasps folder (job buttons, Cancel, progress bar).
-        pool: the worker pool grasp jobs compute in.
+        pool: the worker processes grasp jobs compute in.
         notify: tells the browsers about failures and a busy runner.
         set_status: the panel's status line (:data:`~..jobs.READY` when a job ends).
         can_rank: whether there are grasps to rank (the listed segment has some).
@@ -37,7 +41,7 @@ class GraspJobs:
     def __init__(
         self,
         panel: GraspPanel,
-        pool: WorkerPool,
+        pool: ProcessPool,
         notify: Notify,
         set_status: Callable[[str], None],
         can_rank: Callable[[], bool],
@@ -70,9 +74,9 @@ class GraspJobs:
 
         def run() -> None:
             try:
-                if self.pool.full:
-                    self.set_status("_Grasps: waiting for a free worker (others are planning)..._")
-                job.result = self.pool.run(work, job)
+                job.result = work(job)
+            except JobCancelled:  # Cancel (or a closed tab) stopped it: no news
+                job.error = "cancelled"
             except GraspJobError as e:
                 job.error = str(e)
                 if not job.cancel_event.is_set():  # after Cancel (or a new scene) it is no news
@@ -97,6 +101,13 @@ class GraspJobs:
         if wait:
             job.thread.join()
         return job
+
+    def compute(self, job: GraspJob, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """``fn(*args, **kwargs)`` (a module-level function that takes ``progress`` and ``cancel``
+        keywords) computed in a worker process, its progress on the bar; ``job``'s Cancel reaches it."""
+        if self.pool.full:
+            self.set_status("_Grasps: waiting for a free worker (others are planning)..._")
+        return self.pool.run(fn, *args, progress=self.progress, cancel=job.cancel_event, **kwargs)
 
     def running(self) -> bool:
         """Whether a job runs now."""

@@ -1,0 +1,118 @@
+"""The worker processes grasp jobs compute in: results, errors, progress and Cancel across the
+process boundary; a worker that hangs or dies is replaced; shutdown leaves no child."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import pytest
+
+from shapeviewer import processes
+from shapeviewer.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
+
+
+def report_and_return_pid(steps: int, *, progress, cancel) -> int:
+    for i in range(steps + 1):
+        progress(i / steps)
+    return os.getpid()
+
+
+def fail(*, progress, cancel) -> None:
+    raise ValueError("no faces to grasp")
+
+
+def wait_for_cancel(*, progress, cancel) -> str:
+    t0 = time.monotonic()
+    while not cancel():
+        if time.monotonic() - t0 > 30:
+            return "never cancelled"
+        time.sleep(0.01)
+    return "stopped"
+
+
+def ignore_cancel(*, progress, cancel) -> None:
+    time.sleep(60)
+
+
+def die(code: int, *, progress, cancel) -> None:
+    os._exit(code)
+
+
+@pytest.fixture
+def pool():
+    p = ProcessPool(1, name="test-worker")
+    yield p
+    p.shutdown()
+
+
+def test_a_job_runs_in_another_process_and_reports_progress(pool):
+    seen: list[float] = []
+    pid = pool.run(report_and_return_pid, 200, progress=seen.append)
+    assert pid != os.getpid()
+    # Whole percents only, in order, ending at 1.
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 101
+    assert pool.run(report_and_return_pid, 1) == pid  # the worker is kept for the next job
+
+
+def test_an_error_is_raised_with_the_workers_traceback(pool):
+    with pytest.raises(ValueError, match="no faces") as info:
+        pool.run(fail)
+    assert isinstance(info.value.__cause__, RemoteTraceback) and "def fail" not in str(info.value.__cause__)
+    assert "in fail" in str(info.value.__cause__)
+
+
+def test_cancel_reaches_the_worker(pool):
+    cancel = threading.Event()
+    threading.Timer(0.3, cancel.set).start()
+    t0 = time.monotonic()
+    assert pool.run(wait_for_cancel, cancel=cancel) == "stopped"
+    assert time.monotonic() - t0 < 5
+
+
+def test_a_worker_that_ignores_cancel_is_killed_and_replaced(pool, monkeypatch):
+    monkeypatch.setattr(processes, "CANCEL_GRACE_SECONDS", 0.5)
+    first = pool.run(report_and_return_pid, 1)
+    cancel = threading.Event()
+    threading.Timer(0.2, cancel.set).start()
+    t0 = time.monotonic()
+    with pytest.raises(JobCancelled):
+        pool.run(ignore_cancel, cancel=cancel)
+    assert time.monotonic() - t0 < 5
+    second = pool.run(report_and_return_pid, 1)
+    assert second != first  # a fresh worker
+    with pytest.raises(ProcessLookupError):
+        os.kill(first, 0)
+
+
+def test_a_worker_that_dies_is_reported_and_replaced(pool):
+    with pytest.raises(WorkerDied, match="exit code 3"):
+        pool.run(die, 3)
+    assert pool.run(report_and_return_pid, 1) != os.getpid()
+
+
+def test_jobs_wait_for_a_free_worker_and_shutdown_leaves_no_child():
+    pool = ProcessPool(1, name="test-worker")
+    results: list[object] = []
+    cancel = threading.Event()
+    first = threading.Thread(target=lambda: results.append(pool.run(wait_for_cancel, cancel=cancel)))
+    first.start()
+    time.sleep(0.5)
+    assert pool.full
+    second = threading.Thread(target=lambda: results.append(pool.run(report_and_return_pid, 1)))
+    second.start()
+    time.sleep(0.3)
+    assert results == []  # the second waits behind the first
+    cancel.set()
+    first.join(10)
+    second.join(10)
+    assert results[0] == "stopped" and isinstance(results[1], int)
+    pid = results[1]
+    t0 = time.monotonic()
+    pool.shutdown()
+    assert time.monotonic() - t0 < 2
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    with pytest.raises(RuntimeError, match="stopping"):
+        pool.run(report_and_return_pid, 1)
