@@ -51,6 +51,7 @@ def _serve(conn: Connection, nice: int) -> None:
     keywords, answer with its result or exception, until ``None`` or the pipe closes. During a
     job the only message that can arrive is ``"cancel"``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle: it stops us
+    os.setpgrp()  # a group of its own, so that killing it also kills what it started (V-HACD)
     if nice:
         os.nice(nice)
     last = [-1]
@@ -152,7 +153,10 @@ class _Worker:
             self.conn.close()
             self.conn = None
         if self.process is not None:
-            self.process.kill()
+            try:
+                os.killpg(self.process.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):  # gone, or not yet in its own group
+                self.process.kill()
             self.process.join(STOP_SECONDS)
             self.process = None
 

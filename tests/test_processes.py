@@ -40,6 +40,25 @@ def die(code: int, *, progress, cancel) -> None:
     os._exit(code)
 
 
+def start_a_child(*, progress, cancel) -> int:
+    """Start a long subprocess (as V-HACD is started) and hang."""
+    import subprocess
+
+    child = subprocess.Popen(["sleep", "60"])
+    progress(float(child.pid))  # tells the test which process it started
+    time.sleep(60)
+    return child.pid
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie only waits for init)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 @pytest.fixture
 def pool():
     p = ProcessPool(1, name="test-worker")
@@ -84,6 +103,21 @@ def test_a_worker_that_ignores_cancel_is_killed_and_replaced(pool, monkeypatch):
     assert second != first  # a fresh worker
     with pytest.raises(ProcessLookupError):
         os.kill(first, 0)
+
+
+def test_killing_a_worker_also_kills_the_processes_it_started(pool, monkeypatch):
+    monkeypatch.setattr(processes, "CANCEL_GRACE_SECONDS", 0.5)
+    cancel = threading.Event()
+    child: list[int] = []
+
+    def started(pid: float) -> None:
+        child.append(int(pid))
+        cancel.set()
+
+    with pytest.raises(JobCancelled):
+        pool.run(start_a_child, progress=started, cancel=cancel)
+    time.sleep(0.2)
+    assert not running(child[0])
 
 
 def test_a_worker_that_dies_is_reported_and_replaced(pool):
