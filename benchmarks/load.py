@@ -89,6 +89,7 @@ PLAN_DONE = {"Grasps ready": "ok", "No grasp found": "no grasp"}
 PLAN_LOST = ("Planning cancelled", "Grasps dropped")
 
 TARGET_P95 = 0.5  # s, click -> own fast mesh received (lightweight sessions)
+STOP_TARGET = 3.0  # s from Ctrl-C until the server and every process it started have gone
 MEMORY_TOLERANCE = (0.10, 50.0)  # "back to baseline": within 10 % or 50 MB of it
 ERROR_KINDS = ("timeout", "refused", "error", "missed", "not ready")
 
@@ -122,6 +123,14 @@ def running(pid: int) -> bool:
         return False
 
 
+def command(pid: int) -> str:
+    """Process ``pid``'s command line (shortened)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")[:80]
+    except OSError:
+        return "?"
+
+
 def _own_rss_mb(pid: int) -> float | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -153,7 +162,7 @@ class Server:
             )
         self.pid = self.proc.pid
         self.stop_seconds: float | None = None
-        self.children_left: list[int] = []  # processes it started that outlived it
+        self.children_left: list[str] = []  # 'pid command'  # processes it started that outlived it
 
     def wait_ready(self, timeout: float) -> str:
         """The URL the server prints once it serves (raises if it exits or takes longer than ``timeout`` s)."""
@@ -183,7 +192,11 @@ class Server:
         try:
             self.proc.wait(timeout)
             self.stop_seconds = time.monotonic() - t0
-            self.children_left = [c for c in children if running(c)]
+            # The multiprocessing resource tracker leaves a moment after its last user: what still
+            # runs STOP_TARGET seconds after Ctrl-C is left behind.
+            while any(map(running, children)) and time.monotonic() - t0 < STOP_TARGET:
+                time.sleep(0.05)
+            self.children_left = [f"{c} {command(c)}" for c in children if running(c)]
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(5)
@@ -808,7 +821,8 @@ def markdown(r: dict[str, Any]) -> str:
         left = r["info"].get("server_children_left", [])
         lines.append(
             f"| server stopped after Ctrl-C (SIGINT) in | {r['info']['server_stop_seconds']:.1f} s, "
-            f"{len(left)} child process(es) left | | |"
+            f"{len(left)} child process(es) left {STOP_TARGET:.0f} s after it{': ' if left else ''}"
+            f"{'; '.join(left)} | | |"
         )
     lines += [
         "",
