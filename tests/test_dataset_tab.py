@@ -177,7 +177,7 @@ def test_open_in_pipeline(app):
     name, view = VIEWS[3]
     d.select(name, view)
     assert d.open_in_pipeline()
-    assert not d.active and not node(app, ROOT).visible
+    assert not d.active and node(app, ROOT) is None  # taken off the scene
     assert all(node(app, k).visible for k in PIPELINE)
     assert app.scene.capture.source.endswith(f"{view_stem(name, view)}__points.ply")
     assert len(app.scene.segments) == 1  # the lone object, no table

@@ -34,11 +34,12 @@ import pybullet as p
 import pytest
 import trimesh
 
-from shapeviewer.evaluation.records import view_stem
+from shapeviewer.evaluation.records import KINDS, view_stem
 from shapeviewer.grasp.serialize import grasps_from_json
 
 from helpers import (
     browser_page,
+    canvas_point,
     checked,
     choose,
     click,
@@ -138,6 +139,24 @@ def shot(walk, name: str) -> Path:
     path = walk.shots / f"{name}.png"
     walk.page.screenshot(path=str(path), timeout=120_000)
     return path
+
+
+def unlabelled(walk, names: list[str]) -> list[str]:
+    """Of the label nodes ``names``, those with no dark (text) pixels just above their anchor in
+    a screenshot of the page (labels are dark text over the light sky; anchored bottom-centre)."""
+    from PIL import Image
+
+    image = np.asarray(Image.open(io.BytesIO(walk.page.screenshot(timeout=120_000))).convert("L"))
+    missing = []
+    for name in names:
+        xy = canvas_point(walk.page, walk.client, np.asarray(scene_node(walk.client, name).position))
+        if xy is None:
+            continue  # under the panel
+        x, y = int(xy[0]), int(xy[1])
+        box = image[max(0, y - 40) : y, max(0, x - 35) : x + 35]
+        if (box < 100).sum() < 20:
+            missing.append(name)
+    return missing
 
 
 # ----------------------------------------------------------------------------------------------
@@ -374,6 +393,10 @@ def test_dataset_tab_shows_a_view_and_exports_it(walk):
     assert dropdown_value(page, "View").startswith(f"view {view} ")
     assert scene_node(walk.client, "/dataset/truth") is not None
     shot(walk, "3_dataset_view")
+    # Every column's label (method, metrics) is drawn without the user moving the camera.
+    labels = [f"/dataset/label_{k}" for k in KINDS if scene_node(walk.client, f"/dataset/label_{k}") is not None]
+    assert len(labels) >= 6, labels
+    wait_until(lambda: not unlabelled(walk, labels), 20, f"labels drawn: {unlabelled(walk, labels)} missing")
 
     stem = view_stem(name, view)
     path = download(page, "Mesh (full resolution)", folder)  # Ours-fast, PLY, camera frame by default

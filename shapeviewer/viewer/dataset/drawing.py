@@ -140,7 +140,7 @@ class DatasetScene:
 
     def __init__(self, audience: Audience) -> None:
         self.audience = audience
-        self.root = audience.scene.add_frame(ROOT, show_axes=False, visible=False)
+        self.root: viser.FrameHandle | None = None  # there while the dataset is on screen
         self.nodes: list[str] = []  # names of the drawn view's nodes
         self._saved_cameras: dict[int, tuple] = {}  # client id -> (fov, up, position, look_at) to restore
 
@@ -228,6 +228,21 @@ class DatasetScene:
                 cast_shadow=False,
                 receive_shadow=False,
             )
+
+    def show_root(self) -> None:
+        """Put the (empty) dataset root in the scene, if it is not there.
+
+        The root is added and removed, never hidden: viser 1.1's browser leaves labels under a
+        frame that was hidden (or just shown) undrawn until the camera moves."""
+        if self.root is None:
+            self.root = self.audience.scene.add_frame(ROOT, show_axes=False)
+
+    def remove_root(self) -> None:
+        """Take the dataset root and the drawn view off the scene."""
+        if self.root is not None:
+            self.root.remove()  # removes every node under it too
+            self.root = None
+        self.nodes = []
 
     def _add(self, make: Callable[..., viser.SceneNodeHandle], name: str, *args, **kwargs) -> None:
         make(name, *args, **kwargs)

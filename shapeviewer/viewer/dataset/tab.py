@@ -186,7 +186,7 @@ class DatasetTab:
                     return
                 self.select(first, None, client)
                 return
-            self._activate(self.shown.layout)
+            self._show(self.shown.info, client)  # drawn anew: leaving took it off the scene
 
     def leave(self, client: viser.ClientHandle | None = None) -> None:
         """Back to the pipeline: hide the dataset, show the pipeline's nodes and the cameras as they were."""
@@ -194,7 +194,7 @@ class DatasetTab:
             if not self.active:
                 return
             self.active = False
-            self.scene.root.visible = False
+            self.scene.remove_root()
             self.hooks.set_pipeline_visible(True)
             self.scene.restore_cameras()
             self.c.set_shown(False)
@@ -370,9 +370,7 @@ class DatasetTab:
         )
         labels = {k: column_label(k, len(items[k][0]) if k in items else 0, by_method.get(k), grasps) for k in kinds}
         hands = best_grasp_hands(store, info, grasps, layout) if self.c.show_grasps.value else []
-        # Show the root before adding to it: labels added under a hidden frame stay hidden in the
-        # browser when the frame is shown later (viser 1.1).
-        self._activate(None)
+        self._activate(None)  # the root first: the view is drawn under it
         self.scene.draw(layout, kinds, items, labels, hands)
         self.shown = ShownView(o, info, completions, grasps, layout)
         self.c.details.content = view_markdown(o, info, completions, grasps)
@@ -388,7 +386,7 @@ class DatasetTab:
         if not self.active:
             self.active = True
             self.hooks.set_pipeline_visible(False)
-            self.scene.root.visible = True
+            self.scene.show_root()
             self.c.set_shown(True)
         if layout is not None:
             self.scene.aim_cameras(layout, DATASET_FOV)
