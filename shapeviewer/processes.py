@@ -117,25 +117,30 @@ class _Worker:
     ) -> T:
         if self.process is None or not self.process.is_alive():
             self._start()
-        assert self.conn is not None
-        self.conn.send((fn, args, kwargs))
+        # Locals: shutdown() may kill the worker (and reset these) from another thread meanwhile.
+        process, conn = self.process, self.conn
+        assert conn is not None
         cancelled_at: float | None = None
+        sent = False
         while True:
-            if cancel is not None and cancel.is_set() and cancelled_at is None:
-                self.conn.send("cancel")
-                cancelled_at = time.monotonic()
-            if cancelled_at is not None and time.monotonic() - cancelled_at > CANCEL_GRACE_SECONDS:
-                self.kill()
-                raise JobCancelled(f"the job did not stop within {CANCEL_GRACE_SECONDS:.0f} s of Cancel")
             try:
-                if not self.conn.poll(POLL_SECONDS):
-                    if not self.process.is_alive():
+                if not sent:
+                    conn.send((fn, args, kwargs))
+                    sent = True
+                if cancel is not None and cancel.is_set() and cancelled_at is None:
+                    conn.send("cancel")
+                    cancelled_at = time.monotonic()
+                if cancelled_at is not None and time.monotonic() - cancelled_at > CANCEL_GRACE_SECONDS:
+                    self.kill()
+                    raise JobCancelled(f"the job did not stop within {CANCEL_GRACE_SECONDS:.0f} s of Cancel")
+                if not conn.poll(POLL_SECONDS):
+                    if not process.is_alive():
                         raise EOFError
                     continue
-                kind, value = self.conn.recv()
+                kind, value = conn.recv()
             except (EOFError, OSError):
-                self.process.join(1.0)  # the pipe closes a moment before the process is reaped
-                code = self.process.exitcode
+                process.join(1.0)  # the pipe closes a moment before the process is reaped
+                code = process.exitcode
                 self.kill()
                 raise WorkerDied(f"the worker process stopped in the middle of the job (exit code {code})") from None
             if kind == "progress":
@@ -149,27 +154,28 @@ class _Worker:
 
     def kill(self) -> None:
         """End the process now (it is started again for the next job)."""
-        if self.conn is not None:
-            self.conn.close()
-            self.conn = None
-        if self.process is not None:
+        conn, self.conn = self.conn, None
+        process, self.process = self.process, None
+        if conn is not None:
+            conn.close()
+        if process is not None:
             try:
-                os.killpg(self.process.pid, signal.SIGKILL)
+                os.killpg(process.pid, signal.SIGKILL)
             except (ProcessLookupError, PermissionError):  # gone, or not yet in its own group
-                self.process.kill()
-            self.process.join(STOP_SECONDS)
-            self.process = None
+                process.kill()
+            process.join(STOP_SECONDS)
 
     def stop(self) -> None:
         """Ask the process to leave; kill it if it does not within :data:`STOP_SECONDS`."""
-        if self.process is None:
+        process, conn = self.process, self.conn
+        if process is None:
             return
         try:
-            if self.conn is not None:
-                self.conn.send(None)
+            if conn is not None:
+                conn.send(None)
         except (OSError, ValueError):
             pass
-        self.process.join(STOP_SECONDS)
+        process.join(STOP_SECONDS)
         self.kill()
 
 
@@ -235,6 +241,10 @@ class ProcessPool:
                 self._submitted -= 1
                 self._idle.append(worker)
                 self._cond.notify()
+
+    def workers_alive(self) -> int:
+        """How many worker processes run now (they start on first use)."""
+        return sum(w.process is not None and w.process.is_alive() for w in self._all)
 
     def shutdown(self) -> None:
         """Stop every worker process (running jobs end with :class:`WorkerDied`)."""

@@ -150,3 +150,26 @@ def test_jobs_wait_for_a_free_worker_and_shutdown_leaves_no_child():
         os.kill(pid, 0)
     with pytest.raises(RuntimeError, match="stopping"):
         pool.run(report_and_return_pid, 1)
+
+
+def test_shutdown_ends_a_running_job_at_once():
+    pool = ProcessPool(1, name="test-worker")
+    raised: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            pool.run(ignore_cancel)
+        except BaseException as e:
+            raised.append(e)
+
+    job = threading.Thread(target=run)
+    job.start()
+    deadline = time.monotonic() + 30
+    while pool.workers_alive() < 1 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)  # the worker has the job and sleeps in it
+    t0 = time.monotonic()
+    pool.shutdown()
+    job.join(5)
+    assert not job.is_alive() and time.monotonic() - t0 < 3
+    assert len(raised) == 1 and isinstance(raised[0], WorkerDied), raised
