@@ -572,7 +572,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command. Failures are one line on stderr and exit code 2 (1 for an unexpected error,
     with its traceback under ``-v``); Ctrl-C stops any command within seconds (exit code 130,
     no child process left: :mod:`.interrupt`). A folder the command created and left empty is removed."""
-    from .interrupt import interrupt_watch, kill_descendants
+    from .interrupt import interrupt_watch, interrupted, kill_descendants
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(
@@ -593,15 +593,18 @@ def main(argv: list[str] | None = None) -> int:
             kill_descendants()  # here too: the watcher thread dies with the process, maybe before it is done
             print("shapeviewer: interrupted", file=sys.stderr)
             return 130
-        except (ValueError, OSError, KeyError, RuntimeError) as e:
-            # CaptureError, MeshError, DecompositionError, a missing file...: the message says it all.
+        except Exception as e:
+            if interrupted():  # Ctrl-C killed a child (V-HACD) and its failure surfaced first
+                kill_descendants()
+                print("shapeviewer: interrupted", file=sys.stderr)
+                return 130
             if args.verbose:
                 traceback.print_exc()
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        except Exception as e:  # a bug: still one line, the traceback with -v
-            if args.verbose:
-                traceback.print_exc()
+            if isinstance(e, (ValueError, OSError, KeyError, RuntimeError)):
+                # CaptureError, MeshError, DecompositionError, a missing file...: the message says it all.
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            # A bug: still one line, the traceback with -v.
             print(f"error: unexpected {type(e).__name__}: {e} (run with -v for the traceback)", file=sys.stderr)
             return 1
         finally:

@@ -108,6 +108,7 @@ def interrupt_watch(hard_exit_seconds: float = HARD_EXIT_SECONDS) -> Iterator[No
     signal.signal(signal.SIGTERM, raise_interrupt)
     if previous_int in (signal.SIG_IGN, signal.SIG_DFL, None):
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    _signalled.clear()
     watcher = threading.Thread(target=_watch, args=(read_fd, hard_exit_seconds), name="interrupt-watch", daemon=True)
     watcher.start()
     try:
@@ -117,6 +118,16 @@ def interrupt_watch(hard_exit_seconds: float = HARD_EXIT_SECONDS) -> Iterator[No
         signal.signal(signal.SIGTERM, previous_term)
         signal.signal(signal.SIGINT, previous_int)
         os.close(write_fd)  # ends the watcher, unless it is already counting down to the hard exit
+
+
+_signalled = threading.Event()  # set once a watched block gets SIGINT/SIGTERM
+
+
+def interrupted() -> bool:
+    """Whether the running (or last) :func:`interrupt_watch` block got SIGINT or SIGTERM: its
+    killing of the children may surface in the main thread as their failure before the
+    ``KeyboardInterrupt`` does."""
+    return _signalled.is_set()
 
 
 def _watch(read_fd: int, hard_exit_seconds: float) -> None:
@@ -130,6 +141,7 @@ def _watch(read_fd: int, hard_exit_seconds: float) -> None:
                 break
     finally:
         os.close(read_fd)
+    _signalled.set()
     kill_descendants()
     time.sleep(hard_exit_seconds)
     # Still here: the main thread is stuck (a C call, a thread pool joined at exit). Nothing it
