@@ -13,33 +13,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from shapeviewer.interrupt import alive, descendants
+
 ROOT = Path(__file__).resolve().parents[1]
 STOP_TARGET = 3.0  # s from Ctrl-C until the server and every process it started have gone
-
-
-def descendants(pid: int) -> list[int]:
-    """The processes ``pid`` started, and theirs (the server's grasp workers)."""
-    found: list[int] = []
-    try:
-        tasks = list(Path(f"/proc/{pid}/task").iterdir())
-    except OSError:
-        return found
-    for task in tasks:
-        try:
-            children = [int(c) for c in (task / "children").read_text().split()]
-        except OSError:
-            continue
-        for c in children:
-            found += [c, *descendants(c)]
-    return found
-
-
-def running(pid: int) -> bool:
-    """Whether process ``pid`` exists and has not exited (a zombie waits only for init to reap it)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
 
 
 def command(pid: int) -> str:
@@ -113,9 +90,9 @@ class Server:
             self.stop_seconds = time.monotonic() - t0
             # The multiprocessing resource tracker leaves a moment after its last user: what still
             # runs STOP_TARGET seconds after Ctrl-C is left behind.
-            while any(map(running, children)) and time.monotonic() - t0 < STOP_TARGET:
+            while any(map(alive, children)) and time.monotonic() - t0 < STOP_TARGET:
                 time.sleep(0.05)
-            self.children_left = [f"{c} {command(c)}" for c in children if running(c)]
+            self.children_left = [f"{c} {command(c)}" for c in children if alive(c)]
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(5)

@@ -64,7 +64,7 @@ def kill_descendants(grace: float = TERM_GRACE_SECONDS) -> list[int]:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(pid, sig)
         deadline = time.monotonic() + grace
-        while sig == signal.SIGTERM and time.monotonic() < deadline and any(_alive(p) for p in pids):
+        while sig == signal.SIGTERM and time.monotonic() < deadline and any(alive(p) for p in pids):
             time.sleep(0.02)
     for pid in pids:  # reap our own children so that they do not linger as zombies
         with contextlib.suppress(ChildProcessError, OSError):
@@ -77,7 +77,8 @@ def _resource_tracker_pid() -> int | None:
     return getattr(getattr(tracker, "_resource_tracker", None), "_pid", None)
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not exited (a zombie only waits to be reaped)."""
     try:
         state = Path(f"/proc/{pid}/stat").read_text()
     except OSError:

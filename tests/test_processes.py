@@ -10,6 +10,7 @@ import time
 import pytest
 
 from shapeviewer import processes
+from shapeviewer.interrupt import alive
 from shapeviewer.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
 
 
@@ -48,15 +49,6 @@ def start_a_child(*, progress, cancel) -> int:
     progress(float(child.pid))  # tells the test which process it started
     time.sleep(60)
     return child.pid
-
-
-def running(pid: int) -> bool:
-    """Whether process ``pid`` exists and has not exited (a zombie only waits for init)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 @pytest.fixture
@@ -117,7 +109,7 @@ def test_killing_a_worker_also_kills_the_processes_it_started(pool, monkeypatch)
     with pytest.raises(JobCancelled):
         pool.run(start_a_child, progress=started, cancel=cancel)
     time.sleep(0.2)
-    assert not running(child[0])
+    assert not alive(child[0])
 
 
 def test_a_worker_that_dies_is_reported_and_replaced(pool):
