@@ -20,7 +20,7 @@ import pytest
 import trimesh
 
 from shapeviewer.grasp import world as W
-from shapeviewer.interrupt import descendants
+from shapeviewer.interrupt import alive, descendants
 
 from helpers import free_port
 
@@ -199,30 +199,18 @@ def test_vhacd_cache_is_bounded_least_recently_used_first(tmp_path, monkeypatch)
     assert "old0_r100000.obj" in left and "old1_r100000.obj" not in left and "old9_r100000.obj" in left
 
 
-def _alive(pids: list[int]) -> list[int]:
-    out = []
-    for pid in pids:
-        try:
-            stat = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            continue
-        if stat[stat.rindex(")") + 2] != "Z":
-            out.append(pid)
-    return out
-
-
-def _interrupt(proc: subprocess.Popen, children: list[int]) -> float:
+def _interrupt(proc: subprocess.Popen, children: list[int]) -> tuple[float, str]:
     """SIGINT to the command alone (not its process group, so its children get nothing): seconds
-    until it exited, after checking that it left no child alive."""
+    until it exited and its stderr, after checking that it left no child alive."""
     proc.send_signal(signal.SIGINT)
     t0 = time.monotonic()
-    _, proc.stderr_text = proc.communicate(timeout=30)
+    _, stderr = proc.communicate(timeout=30)
     seconds = time.monotonic() - t0
     deadline = time.monotonic() + 1.0  # multiprocessing's tracker ends on its own when its parent does
-    while _alive(children) and time.monotonic() < deadline:
+    while any(map(alive, children)) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not _alive(children), f"children left running: {_alive(children)}"
-    return seconds
+    assert not any(map(alive, children)), f"children left running: {[c for c in children if alive(c)]}"
+    return seconds, stderr
 
 
 def test_ctrl_c_stops_a_command_with_worker_processes(tmp_path, env):
@@ -254,7 +242,7 @@ def test_ctrl_c_stops_a_command_with_worker_processes(tmp_path, env):
     time.sleep(1.0)  # the workers are busy importing and generating
     children = descendants(proc.pid)
     assert len(children) >= 2 and proc.poll() is None
-    seconds = _interrupt(proc, children)
+    seconds, _ = _interrupt(proc, children)
     assert seconds <= 3.0, f"Ctrl-C took {seconds:.1f} s"
     assert proc.returncode == 130
     assert not (tmp_path / "gen").exists() or any(p.is_file() for p in (tmp_path / "gen").rglob("*"))
@@ -276,9 +264,9 @@ def test_ctrl_c_stops_grasp_planning_and_its_vhacd_child(tmp_path, env):
         time.sleep(0.1)
     children = descendants(proc.pid)
     assert children and proc.poll() is None
-    seconds = _interrupt(proc, children)
+    seconds, stderr = _interrupt(proc, children)
     assert seconds <= 3.0, f"Ctrl-C took {seconds:.1f} s"
-    assert proc.returncode == 130, proc.stderr_text
+    assert proc.returncode == 130, stderr
     assert not (tmp_path / "grasps.json").exists()
 
 
@@ -300,5 +288,5 @@ def test_ctrl_c_stops_the_app(tmp_path, env):
         if "ready on" in line or not line:
             break
     assert "ready on" in lines[-1], lines
-    seconds = _interrupt(proc, descendants(proc.pid))
+    seconds, _ = _interrupt(proc, descendants(proc.pid))
     assert seconds <= 3.0, f"Ctrl-C took {seconds:.1f} s"
