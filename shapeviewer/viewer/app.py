@@ -1,10 +1,11 @@
 """The web viewer of the paper's runtime pipeline (Fig. 5, steps 1-5a), served with viser.
 
 :class:`ViewerApp` is the server: it loads what every browser shares once (the CNN, the default
-scenes, the sample results store, two bounded worker pools) and gives each browser tab its own
-:class:`~.session.Session` (its capture, selection, completions, grasps and Dataset tab, drawn with
-viser's per-client scene and GUI), closed with the tab. :meth:`ViewerApp.open_session` opens a
-session without a browser, drawn server-wide, for scripts and tests.
+scenes, the sample results store, a bounded pool of worker threads and one of worker processes for
+grasp jobs) and gives each browser tab its own :class:`~.session.Session` (its capture, selection,
+completions, grasps and Dataset tab, drawn with viser's per-client scene and GUI), closed with the
+tab. :meth:`ViewerApp.open_session` opens a session without a browser, drawn server-wide, for
+scripts and tests.
 """
 
 from __future__ import annotations
