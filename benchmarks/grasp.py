@@ -101,7 +101,8 @@ def main() -> None:
     # Only now: the meshes and scene come from the usual cache, every V-HACD of a plan is new.
     os.environ["SHAPEVIEWER_CACHE"] = tempfile.mkdtemp(prefix="grasp-bench-")
 
-    from shapeviewer.grasp.execute import execute_grasps, lift_test
+    from shapeviewer.grasp.execute import execute_grasps
+    from shapeviewer.grasp.lift import lift_test
     from shapeviewer.grasp.plan import plan
     from shapeviewer.grasp.samples import hand_samples
     from shapeviewer.grasp.world import convex_decomposition

@@ -76,7 +76,7 @@ def main() -> None:
         scores = robustness(grasps, meshes, meshes[0], table=table, processes=args.processes)
         walls.append(time.perf_counter() - t)
         cpus.append(cpu_seconds() - cpu)
-        order = rank_robust(scores)
+        order = rank_robust(scores, [g.lift for g in grasps])
         print(
             f"{name + ' ' + str(view):36s} {len(meshes[0].faces):6d} {len(grasps):6d} {walls[-1]:7.2f}"
             f" {cpus[-1]:6.2f} {np.mean([s.fraction for s in scores]):5.2f} {scores[0].fraction:8.2f}"

@@ -55,10 +55,11 @@ def visible_points(mesh_cam: trimesh.Trimesh, n: int = 600, seed: int = 0) -> np
 
 def grasp_doc(completion_cam: trimesh.Trimesh, n: int = 2) -> str:
     """A grasps file: ``n`` Barrett grasps above the completion (evaluation world frame) and their executions."""
-    from shapeviewer.grasp.execute import ExecutionResult, LiftResult
+    from shapeviewer.grasp.execute import ExecutionResult
     from shapeviewer.grasp.hands import get_hand
     from shapeviewer.grasp.plan import Grasp
     from shapeviewer.grasp.serialize import grasps_to_json
+    from shapeviewer.grasp.state import LiftResult
 
     hand = get_hand("barrett")
     world = completion_cam.copy()

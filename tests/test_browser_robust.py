@@ -49,13 +49,14 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
 
             job = app.plan_grasps(sid, "barrett", "fast", 3, seed=0)
             assert job is not None and job.error is None and job.result is not None and job.result.grasps
+            lifts = [g.lift for g in job.result.grasps]
             press(page, "Rank by robustness")  # waits until the button is enabled: there are grasps
             job = wait_until(
                 lambda: app.grasps.job if app.grasps.job.kind == "rank" else None, 20, "the click to start ranking"
             )
             assert job.wait(180), "ranking did not finish"
             assert job.error is None and job.result is not None
-            best = rank_robust(job.result)[0]
+            best = rank_robust(job.result, lifts)[0]
             holds = f"holds {round(8 * job.result[best].fraction)}/8"
             # The browser lists the most robust grasp first and describes it.
             wait_for_text(page, f"Robustness: rank 1 of {len(job.result)} · {holds} sample completions", timeout=30)

@@ -88,7 +88,6 @@ def test_select_draws_the_view_side_by_side(app):
     assert truth[:, 2].min() == pytest.approx(0.0, abs=1e-6)  # standing on the floor
     # The browser camera looks at the side the sensor did not see: sensor and camera on opposite sides.
     assert L.sensor_position[1] > L.columns["points"][1] and L.camera_position[1] < 0
-    assert d.shown.seconds < 2.0
     assert "| Mirror | failed |" in d.c.details.content
 
 

@@ -8,10 +8,12 @@ import trimesh
 
 from shapeviewer.grasp import plan as P
 from shapeviewer.grasp.hands import get_hand
+from shapeviewer.grasp.lift import lift_test
 from shapeviewer.grasp.object_field import APPROACH_MARGIN, ObjectField
 from shapeviewer.grasp.samples import hand_samples
 from shapeviewer.grasp.search import DISTINCT_ANGLE, DISTINCT_POSITION, distinct, search
 from shapeviewer.grasp.world import GraspWorld
+from shapeviewer.sim import household
 
 SMALL = P.PlanSettings(samples=256, chains=16, steps=10, simulate=12)
 MEDIUM = P.PlanSettings(samples=512, chains=32, steps=60, simulate=20)  # enough for boxes and cylinders
@@ -47,9 +49,12 @@ def check_grasps(grasps: list[P.Grasp], mesh: trimesh.Trimesh) -> None:
         links = {c.link for c in g.contacts}
         assert all(links & set(f.links) for f in hand.fingers)
     assert best.epsilon > 0.0 and best.volume > 0.0
-    assert [g.epsilon for g in grasps if g.force_closure] == sorted(
-        (g.epsilon for g in grasps if g.force_closure), reverse=True
-    )
+    # Grasps that lift the mesh come first (the lift check), then by epsilon within each group.
+    group = [0 if g.lift is not None and g.lift.success else 1 if g.lift is None else 2 for g in grasps]
+    assert group == sorted(group)
+    for k in set(group):
+        eps = [g.epsilon for g, q in zip(grasps, group) if q == k and g.force_closure]
+        assert eps == sorted(eps, reverse=True)
     for g in grasps:
         assert g.approach[2] <= 1e-6  # never from below the table
         assert g.frame == "world" and g.T_world_palm.shape == (4, 4)
@@ -114,6 +119,23 @@ def test_box_grasps(box, box_plan):
 
 def test_cylinder_grasps(cylinder):
     check_grasps(P.plan(cylinder, n_grasps=5, seed=1, settings=MEDIUM).grasps, cylinder)
+
+
+def test_lift_check_puts_grasps_that_lift_first():
+    """A long, thin tool lying on the table: the grasp with the best epsilon does not pick it up (epsilon
+    knows neither gravity nor how the fingers squeeze); the planner's lift check puts one that does first."""
+    tool = household.make("tool", 18)
+    poses, probability = tool.compute_stable_poses(n_samples=1)
+    tool = on_table(tool.apply_transform(poses[np.argmax(probability)]))
+    checked = P.plan(tool, n_grasps=4, seed=0, settings=MEDIUM)
+    plain = P.plan(tool, n_grasps=4, seed=0, settings=MEDIUM, lift_check=False)
+    assert all(g.lift is None for g in plain.grasps) and "lift" not in plain.stats.seconds
+    assert not lift_test(plain.grasps[0], tool).success
+    assert checked.grasps and all(g.lift is not None for g in checked.grasps)
+    check_grasps(checked.grasps, tool)
+    best = checked.grasps[0]
+    assert best.lift.success and best.lift.rise > 0.06 and lift_test(best, tool).success
+    assert checked.stats.evaluations == plain.stats.evaluations  # the same search, re-ranked
 
 
 def test_deterministic_for_a_seed(box):

@@ -13,6 +13,7 @@ from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.grasp.plan import PlanSettings, plan
 from shapeviewer.grasp.robust import Robustness, rank_robust, robustness
+from shapeviewer.grasp.state import LiftResult
 
 SETTINGS = PlanSettings(samples=512, chains=32, steps=60, simulate=20)
 
@@ -83,6 +84,9 @@ def test_robust_ranking_puts_the_grasp_that_holds_on_more_samples_first(scene):
         Robustness(0.5, 0.02, ()),
     ]
     assert rank_robust(ranks) == [2, 1, 0, 3]
+    # After the planner's lift check: grasps that lifted the mesh, then unchecked, then dropped.
+    up, down = LiftResult(True, 0.12, 0.0), LiftResult(False, 0.0, 0.05)
+    assert rank_robust(ranks, [down, None, up, up]) == [2, 3, 1, 0]
 
 
 def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):

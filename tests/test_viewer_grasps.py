@@ -261,12 +261,18 @@ def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
     for r in scores:
         assert 0.0 <= r.fraction <= 1.0 and len(r.epsilons) == 8 and r.epsilon_low <= max(r.epsilons)
     # The dropdown lists the most robust grasp first, selected; each entry says how many samples it holds on.
-    best = rank_robust(scores)[0]
+    lifts = [g.lift for g in planned.grasps]
+    best = rank_robust(scores, lifts)[0]
     options = list(panel.grasp.options)
     assert options[0].startswith(f"#{best + 1} ") and panel.grasp.value == options[0] and app.grasps.selected == best
     assert all(" · holds " in o for o in options)
+    # Those that lift the mesh first (the planner's lift check), each group most robust first.
+    lifted = [" · lifts" in o for o in options]
     held = [int(o.split("holds ")[1].split("/")[0]) for o in options]
-    assert held == sorted(held, reverse=True) and held[0] == round(8 * scores[best].fraction)
+    assert lifted == sorted(lifted, reverse=True) and held[0] == round(8 * scores[best].fraction)
+    for group in (True, False):
+        in_group = [h for h, up in zip(held, lifted) if up == group]
+        assert in_group == sorted(in_group, reverse=True)
     info = panel.info.content
     assert "Ranked by robustness" in info and f"**Grasp #{best + 1}**" in info and "rank **1**" in info
     assert f"25% ε {scores[best].epsilon_low:.4f}" in info

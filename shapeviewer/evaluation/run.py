@@ -384,7 +384,7 @@ def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, t
         frame = GridFrame(saved["center"], float(saved["voxel_size"]))
         meshes = sample_meshes(saved["samples"], frame, T_world_cam)
     scores = robustness(grasps, meshes, completion, table=table)
-    rank = {i: k for k, i in enumerate(rank_robust(scores))}
+    rank = {i: k for k, i in enumerate(rank_robust(scores, [g.lift for g in grasps]))}
     return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]
 
 

@@ -10,14 +10,18 @@ lengths in metres, angles in radians, except the execution errors, as named in `
                  "dof_names": [...], "dof_values": [...], "joint_names": [...], "joint_values": [...],
                  "contacts": [{"link": ..., "position": [...], "normal": [...]}, ...],
                  "epsilon": e, "volume": v, "energy": E, "force_closure": bool,
+                 "lift": null or {"success", "rise", "slip"},
                  "execution": null or {the executed state, "joint_error", "pose_error",
                                        "start_clear", "approach_contact", "lift": null or {...}},
                  "robustness": null or {"fraction", "epsilon_low", "epsilons"}}]}
 
+``lift`` is the planner's lift test of the grasp on the mesh it was planned on (rise and slip in
+metres); ``execution.lift`` is the same test on the true object.
+
 ``robustness`` (:class:`~shapeviewer.grasp.robust.Robustness`) is how the grasp fares re-closed on
 sample completions: the share of samples on which it holds, a lower quantile of its epsilon over
 them (the writer may name the quantile in ``meta``) and its epsilon on each sample. Files written
-before it existed have no such key; they read as null.
+before ``lift`` or ``robustness`` existed have no such key; they read as null.
 
 The palm frame is the hand URDF's base link frame (origin at the centre of the palm face, +z the
 approach). Reading uses ``T_world_palm``; position, quaternion, approach and force_closure are
@@ -40,11 +44,11 @@ import trimesh
 
 from shapeviewer.fileio import atomic_write
 from shapeviewer.geometry import centre_of_mass
-from shapeviewer.grasp.execute import ExecutionResult, LiftResult
+from shapeviewer.grasp.execute import ExecutionResult
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import ProgressFn, plan
 from shapeviewer.grasp.robust import Robustness
-from shapeviewer.grasp.state import Grasp, GraspContact, HandState
+from shapeviewer.grasp.state import Grasp, GraspContact, HandState, LiftResult
 from shapeviewer.grasp.world import convex_decomposition
 
 log = logging.getLogger(__name__)
@@ -96,6 +100,14 @@ def _state_to_dict(state: HandState) -> dict:
     }
 
 
+def _lift_to_dict(lift: LiftResult | None) -> dict | None:
+    return None if lift is None else {"success": bool(lift.success), "rise": float(lift.rise), "slip": float(lift.slip)}
+
+
+def _lift_from_dict(d: dict | None) -> LiftResult | None:
+    return None if d is None else LiftResult(bool(d["success"]), float(d["rise"]), float(d["slip"]))
+
+
 def _named(d: dict, names: str, values: str) -> dict[str, float]:
     return dict(zip(d[names], map(float, d[values])))
 
@@ -104,6 +116,7 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None, robust
     """One grasp (and its execution and robustness, if any) as a JSON-ready dict."""
     d = _state_to_dict(grasp)
     d["energy"] = float(grasp.energy)
+    d["lift"] = _lift_to_dict(grasp.lift)  # the planner's lift test, on the mesh planned on
     d["execution"] = None
     if execution is not None:
         e = _state_to_dict(execution)
@@ -112,13 +125,7 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None, robust
             pose_error=float(execution.pose_error),
             start_clear=bool(execution.start_clear),
             approach_contact=bool(execution.approach_contact),
-            lift=None
-            if execution.lift is None
-            else {
-                "success": bool(execution.lift.success),
-                "rise": float(execution.lift.rise),
-                "slip": float(execution.lift.slip),
-            },
+            lift=_lift_to_dict(execution.lift),
         )
         d["execution"] = e
     d["robustness"] = (
@@ -150,22 +157,17 @@ def _state_args(
 
 def grasp_from_dict(d: dict) -> tuple[Grasp, ExecutionResult | None]:
     """Inverse of :func:`grasp_to_dict`."""
-    grasp = Grasp(*_state_args(d), float(d["energy"]), d.get("frame", "world"))
+    grasp = Grasp(*_state_args(d), float(d["energy"]), d.get("frame", "world"), _lift_from_dict(d.get("lift")))
     e = d.get("execution")
     if e is None:
         return grasp, None
-    lift = (
-        None
-        if e.get("lift") is None
-        else LiftResult(bool(e["lift"]["success"]), float(e["lift"]["rise"]), float(e["lift"]["slip"]))
-    )
     execution = ExecutionResult(
         *_state_args(e),
         float(e["joint_error"]),
         float(e["pose_error"]),
         bool(e["start_clear"]),
         bool(e["approach_contact"]),
-        lift,
+        _lift_from_dict(e.get("lift")),
         e.get("frame", "world"),
     )
     return grasp, execution

@@ -34,6 +34,17 @@ class GraspContact:
         return GraspContact(c.link, np.asarray(c.position, float), np.asarray(c.normal, float))
 
 
+@dataclass(frozen=True)
+class LiftResult:
+    """Outcome of a lift test (:func:`~shapeviewer.grasp.lift.lift_test`): ``rise`` (m) of the
+    object's centre of mass, ``slip`` (m) of the object relative to the palm over the test, and
+    ``success`` (the object rose at least half the lift)."""
+
+    success: bool
+    rise: float
+    slip: float
+
+
 @dataclass(eq=False)
 class HandState:
     """A hand on an object.
@@ -76,7 +87,9 @@ class HandState:
 @dataclass(eq=False)
 class Grasp(HandState):
     """A planned grasp (see :class:`HandState`). ``energy``: GraspIt's contact energy (m) of the
-    virtual contacts in this state (lower is better)."""
+    virtual contacts in this state (lower is better). ``lift``: the planner's lift test of this
+    state on the mesh it was planned on (None: not run)."""
 
     energy: float
     frame: str = "world"
+    lift: LiftResult | None = None

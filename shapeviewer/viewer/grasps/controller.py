@@ -305,7 +305,7 @@ class GraspController:
         except RobustnessCancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None
-        order = rank_robust(scores)
+        order = rank_robust(scores, [g.lift for g in s.grasps])
         with self._state:
             if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
                 return scores

@@ -14,6 +14,7 @@ import numpy as np
 from ...grasp.execute import ExecutionResult
 from ...grasp.hands import Hand, get_hand
 from ...grasp.robust import ROBUST_QUANTILE, Robustness, rank_robust
+from ...grasp.state import LiftResult
 from .state import SegmentGrasps
 
 NO_PLAN = "_Select a segment, then plan grasps on it._"
@@ -29,11 +30,11 @@ def _epsilon_text(epsilon: float) -> str:
     return f"{epsilon:.4f}" if epsilon > 0 else f"{epsilon:.4f} (no force closure)"
 
 
-def _lift_text(e: ExecutionResult) -> str:
-    if e.lift is None:
+def _lift_text(lift: LiftResult | None) -> str:
+    if lift is None:
         return "lift test not run"
-    verdict = "**lifted** ✓" if e.lift.success else "**dropped** ✗"
-    return f"{verdict} (rose {1000 * e.lift.rise:.0f} mm, slipped {1000 * e.lift.slip:.0f} mm)"
+    verdict = "**lifted** ✓" if lift.success else "**dropped** ✗"
+    return f"{verdict} (rose {1000 * lift.rise:.0f} mm, slipped {1000 * lift.slip:.0f} mm)"
 
 
 def _holds(r: Robustness) -> str:
@@ -42,23 +43,29 @@ def _holds(r: Robustness) -> str:
 
 
 def grasp_options(s: SegmentGrasps) -> dict[str, int]:
-    """The Grasp dropdown's entries for ``s``: ``#<planner rank>  ε <epsilon>`` (and ``· holds
-    <n>/<samples>`` once ranked by robustness) -> index in ``s.grasps``, in the planner's order or,
+    """The Grasp dropdown's entries for ``s``: ``#<planner rank>  ε <epsilon>`` (``· lifts`` when
+    the planner's lift check picked it up, ``· holds <n>/<samples>`` once ranked by robustness) ->
+    index in ``s.grasps``, in the planner's order or,
     once ranked, most robust first. The number stays the planner's: it names the grasp's hand."""
-    order = range(len(s.grasps)) if s.robustness is None else rank_robust(s.robustness)
+    order = range(len(s.grasps)) if s.robustness is None else rank_robust(s.robustness, _lifts(s))
     options = {}
     for k in order:
         g = s.grasps[k]
         entry = f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)")
+        entry += " · lifts" if g.lift is not None and g.lift.success else ""
         options[entry + ("" if s.robustness is None else f" · {_holds(s.robustness[k])}")] = k
     return options
 
 
-def _robustness_line(scores: list[Robustness], k: int) -> str:
-    """Grasp ``k``'s robustness among ``scores``: its robust rank, on how many sample completions
-    it holds, and its epsilon's lower quantile over them."""
+def _lifts(s: SegmentGrasps) -> list[LiftResult | None]:
+    return [g.lift for g in s.grasps]
+
+
+def _robustness_line(scores: list[Robustness], lifts: list[LiftResult | None], k: int) -> str:
+    """Grasp ``k``'s robustness among ``scores``: its robust rank (after the planner's ``lifts``),
+    on how many sample completions it holds, and its epsilon's lower quantile over them."""
     r = scores[k]
-    rank = rank_robust(scores).index(k) + 1
+    rank = rank_robust(scores, lifts).index(k) + 1
     return (
         f"**Robustness**: rank **{rank}** of {len(scores)} · **{_holds(r)}** sample completions "
         f"({100 * r.fraction:.0f}%) · {100 * ROBUST_QUANTILE:.0f}% ε {r.epsilon_low:.4f}"
@@ -71,9 +78,12 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if s is None:
         return NO_PLAN
     n_fc = sum(g.force_closure for g in s.grasps)
+    checked = [g.lift.success for g in s.grasps if g.lift is not None]
     lines = [
         f"**Segment {s.segment_id}** · {s.hand} on the {s.method} mesh · **{len(s.grasps)}** grasps "
-        f"({n_fc} force closure) in {s.stats.seconds.get('total', 0.0):.1f} s"
+        f"({n_fc} force closure"
+        + (f", {sum(checked)} of {len(checked)} checked lift the mesh in simulation: first" if checked else "")
+        + f") in {s.stats.seconds.get('total', 0.0):.1f} s"
     ]
     if s.grasps:
         best = max(g.epsilon for g in s.grasps)
@@ -81,7 +91,8 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if s.robustness:
         lines.append(
             f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions: most robust "
-            f"first (the share of samples a grasp holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε)."
+            f"first (the share of samples a grasp holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
+            "after those that lift the mesh."
         )
     if real_capture:
         lines.append("**No ground truth**: this is a real capture; grasps cannot be executed on the true object.")
@@ -105,7 +116,8 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
         f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
         f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
         f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})"
-        + (f"  \n{_robustness_line(s.robustness, k)}" if s.robustness else "")
+        + ("" if g.lift is None else f"  \n**Lift check** on the {s.method} mesh: {_lift_text(g.lift)}")
+        + (f"  \n{_robustness_line(s.robustness, _lifts(s), k)}" if s.robustness else "")
         + "\n\n"
     )
     header = "| joint | planned |" + (" executed |\n|---|---:|---:|" if e is not None else "\n|---|---:|")
@@ -118,7 +130,7 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if e is not None:
         text += (
             f"\n\n**On the ground truth** ({s.truth_name}): ε {_epsilon_text(e.epsilon)} · joint error "
-            f"**{e.joint_error:.2f}°** · pose error **{e.pose_error:.1f} mm** · {_lift_text(e)}"
+            f"**{e.joint_error:.2f}°** · pose error **{e.pose_error:.1f} mm** · {_lift_text(e.lift)}"
             + ("" if e.start_clear else " · the backed-off start was in collision")
             + "  \n_Blue: the hand as executed; gold: the true object; the stick figure: the planned "
             "grasp. (The completion's mesh and CNN input layers were switched off to show the object.)_"
