@@ -3,7 +3,8 @@
 mean surface distance against the true mesh.
 
 Variants (each a weights file, with or without the context):
-  * ``<label>``: the CNN reads the context and known-empty space is zeroed (the app's path);
+  * ``<label>``: the CNN reads the context and known-empty space is zeroed (the app's path: the
+    detailed mesh meshes the mean of the 8 mirrored answers, ``pipeline.completion_detailed_mesh``);
   * ``<label>-noctx``: occupancy only, no zeroing (how the paper's pipeline ran);
   * ``Hull``: the convex hull of the segment's points.
 
@@ -66,12 +67,13 @@ def main() -> None:
                 variants.append((f"{label}-noctx", None, None))
             for vname, context, plane in variants:
                 p = c.predict(grid, context=context)
+                mean = c.predict_samples(grid, context=context).mean(axis=0) if context is not None else p
                 for mode in modes:
                     try:
                         mesh = (
                             fast_mesh(p, frame)
                             if mode == "fast"
-                            else detailed_mesh(p, frame, v.points_cam, support_plane=plane)
+                            else detailed_mesh(mean, frame, v.points_cam, support_plane=plane)
                         )
                         j, d = score(mesh, v.truth_cam)
                     except ValueError:

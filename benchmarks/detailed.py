@@ -6,8 +6,9 @@ Inputs: the generated default scenes of ``--seeds`` (Kinect model, 640x480, obje
 from the camera) and the organized real captures in ../shared/data/real.
 
 For every segment that can be completed: voxelize + CNN (:func:`pipeline.complete_points`), then
-:func:`reconstruct.detailed_mesh` ``--repeats`` times (median per segment). End to end = voxelize
-+ CNN + Algorithm 1, what the viewer's "Detailed mesh" button costs on a segment not yet completed.
+:func:`pipeline.completion_detailed_mesh` ``--repeats`` times (median per segment; each time the 8
+mirrored CNN passes it meshes the mean of, then Algorithm 1). End to end = voxelize + CNN + those,
+what the viewer's "Detailed mesh" button costs on a segment not yet completed.
 Printed: medians over segments of each step of Algorithm 1 and of the total, with the segment's
 distance from the camera.
 
@@ -31,6 +32,7 @@ from pipeline import load_captures  # noqa: E402  (benchmarks/pipeline.py)
 import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
 
 STEPS = (
+    ("samples", "CNN, 8 mirrored views"),
     ("density", "density ratio"),
     ("upsample", "up-sample CNN output"),
     ("merge", "merge + carve"),
@@ -50,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from shapeviewer.model import load_completer
-    from shapeviewer.pipeline import SegmentTooSmallError, check_segment, complete_points
-    from shapeviewer.reconstruct import detailed_mesh
+    from shapeviewer.pipeline import SegmentTooSmallError, check_segment, complete_points, completion_detailed_mesh
     from shapeviewer.segment import segment_scene
 
     completer = load_completer(args.weights)
@@ -70,13 +71,14 @@ def main(argv: list[str] | None = None) -> int:
             if c.fast_mesh is None:
                 continue
             if not warm:  # the first torch call of the solver pays one-off set-up costs
-                detailed_mesh(c.probabilities, c.frame, points)
+                completion_detailed_mesh(c, points, completer)
                 warm = True
             runs = []
             for _ in range(args.repeats):
                 steps: dict = {}
+                c.samples = None  # as for a segment just completed
                 t0 = time.perf_counter()
-                detailed_mesh(c.probabilities, c.frame, points, timings=steps)
+                completion_detailed_mesh(c, points, completer, timings=steps)
                 runs.append((time.perf_counter() - t0, steps))
             seconds, steps = sorted(runs, key=lambda r: r[0])[len(runs) // 2]
             for key, _ in STEPS:

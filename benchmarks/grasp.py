@@ -16,8 +16,11 @@ that shows one true object is completed by the shipped CNN (its fast mesh, mappe
 frame with the scene's camera pose, exactly what the viewer's "Plan grasps" gives the planner),
 and the grasps are executed on that true object as placed in the scene.
 
-Wall-clock times depend on what else runs; "cpu s" is the planning process's own CPU time (its
-threads included, the V-HACD child process not), a load-independent lower bound.
+"check": seconds of the planner's lift check (its grasps lifted on the mesh planned on), "up": the
+returned grasps that passed it; "lifted": the first ``--lifts`` executed grasps lifted, with a
+shake, from the true object. Wall-clock times depend on what else runs; "cpu s" is the planning
+process's own CPU time (its threads included, the V-HACD child process not), a load-independent
+lower bound.
 """
 
 from __future__ import annotations
@@ -112,8 +115,8 @@ def main() -> None:
     print(f"hand samples ({args.hand}, once per process): {time.perf_counter() - t:.2f} s")
     header = (
         f"{'object':28s} {'faces':>6s} {'plan s':>7s} {'cpu s':>6s} {'search':>7s} {'sim':>6s} {'evals':>6s}"
-        f" {'evals/s':>8s} {'simul.':>6s} {'grasps':>6s} {'FC':>3s} {'exec ms':>8s} {'joint deg':>9s}"
-        f" {'pose mm':>8s} {'lift s':>7s} {'lifted':>6s}"
+        f" {'evals/s':>8s} {'simul.':>6s} {'check':>6s} {'grasps':>6s} {'FC':>3s} {'up':>3s} {'exec ms':>8s}"
+        f" {'joint deg':>9s} {'pose mm':>8s} {'lift s':>7s} {'lifted':>6s}"
     )
     print(header)
     rows = []
@@ -143,7 +146,8 @@ def main() -> None:
         print(
             f"{name:28s} {len(mesh.faces):6d} {s.seconds['total']:7.2f} {cpu:6.2f} {s.seconds['search']:7.2f}"
             f" {s.seconds['simulate']:6.2f} {s.evaluations:6d} {s.evaluations_per_second:8.0f} {s.simulated:6d}"
-            f" {len(grasps):6d} {sum(g.force_closure for g in grasps):3d} {exec_ms:8.1f}"
+            f" {s.seconds.get('lift', 0.0):6.2f} {len(grasps):6d} {sum(g.force_closure for g in grasps):3d}"
+            f" {sum(g.lift is not None and g.lift.success for g in grasps):3d} {exec_ms:8.1f}"
             f" {np.mean([e.joint_error for e in executed]):9.2f} {np.mean([e.pose_error for e in executed]):8.2f}"
             f" {row['lift']:7.3f} {sum(lifts):3d}/{len(lifts):<2d}"
         )

@@ -115,8 +115,7 @@ def cmd_serve(args) -> int:
 def cmd_complete(args) -> int:
     from . import export
     from .model import load_completer
-    from .pipeline import SegmentTooSmallError, check_segment, complete_points
-    from .reconstruct import detailed_mesh
+    from .pipeline import SegmentTooSmallError, check_segment, complete_points, completion_detailed_mesh
     from .segment import segment_scene, world_frame
 
     out = Path(args.out)
@@ -192,7 +191,7 @@ def cmd_complete(args) -> int:
         if args.mode == "detailed":
             steps: dict[str, float] = {}
             t0 = time.perf_counter()
-            mesh = detailed_mesh(c.probabilities, c.frame, s.points_cam, timings=steps, support_plane=seg.plane_cam)
+            mesh = completion_detailed_mesh(c, s.points_cam, completer, timings=steps)
             c.timings["detailed_mesh"] = time.perf_counter() - t0
             e["detailed_steps"] = steps
             path = out / f"segment_{s.id}_detailed.{args.format}"

@@ -8,7 +8,8 @@ import pytest
 import shapeviewer
 from shapeviewer.baselines import hull_mesh
 from shapeviewer.model import load_completer
-from shapeviewer.pipeline import SegmentTooSmallError
+from shapeviewer.pipeline import SegmentTooSmallError, complete_points, completion_detailed_mesh
+from shapeviewer.reconstruct import detailed_mesh
 from shapeviewer.sim.tabletop import render_tabletop_view
 from shapeviewer.voxel import context_grids, partial_to_grid
 
@@ -53,6 +54,23 @@ def test_the_network_never_fills_space_known_to_be_empty(can_view):
     ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     p = load_completer().predict(grid, context=ctx)
     assert ctx.any() and not (p[ctx.any(axis=0)] > 0).any()
+
+
+def test_the_detailed_mesh_meshes_the_mean_of_the_mirrored_answers_and_keeps_them(can_view):
+    v = can_view
+    completer = load_completer()
+    c = complete_points([v.points_cam], completer, support_plane=v.plane_cam)[0]
+    assert c.samples is None
+    steps: dict = {}
+    mesh = completion_detailed_mesh(c, v.points_cam, completer, timings=steps)
+    # The 8 mirrored answers are kept (the Confidence layer reuses them) and are not all the same.
+    assert c.samples.shape == (8, 40, 40, 40) and np.array_equal(c.samples[0], c.probabilities)
+    assert np.abs(c.samples - c.samples[0]).max() > 0.1 and steps["samples"] > 0
+    expected = detailed_mesh(c.samples.mean(axis=0), c.frame, v.points_cam, support_plane=v.plane_cam)
+    assert np.array_equal(mesh.vertices, expected.vertices) and mesh.is_watertight
+    kept = c.samples
+    completion_detailed_mesh(c, v.points_cam, completer)
+    assert c.samples is kept  # made once
 
 
 def test_hull_baseline_is_the_convex_hull_of_the_points(can_view):

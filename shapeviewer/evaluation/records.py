@@ -66,6 +66,7 @@ GRASP_ROW_FIELDS = (
     "epsilon_planned",
     "volume_planned",
     "energy_planned",
+    "lift_planned",
     "epsilon_executed",
     "volume_executed",
     "joint_error_deg",
@@ -249,7 +250,8 @@ def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = N
     ``base``: object, view, view_set, method, hand. ``robustness``: per grasp, a grasp file's
     ``meta["robustness"]`` entry (``{"rank"`` by robustness, 0 first, ``"fraction"`` of sample
     completions it holds on, ``"epsilon_low"``, ``"epsilons"}``, :mod:`grasp.robust`), or None when
-    the grasps were not ranked by robustness (the robust columns are then NaN). Units: joint error
+    the grasps were not ranked by robustness (the robust columns are then NaN). ``lift_planned``:
+    the planner's lift check on the completion (NaN: not run). Units: joint error
     in degrees (mm for the Panda's prismatic fingers), pose error, lift rise and slip in mm;
     booleans as 0/1.
     """
@@ -264,6 +266,7 @@ def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = N
                 "epsilon_planned": float(g.epsilon),
                 "volume_planned": float(g.volume),
                 "energy_planned": float(g.energy),
+                "lift_planned": math.nan if g.lift is None else float(g.lift.success),
                 "epsilon_executed": float(e.epsilon),
                 "volume_executed": float(e.volume),
                 "joint_error_deg": float(e.joint_error),

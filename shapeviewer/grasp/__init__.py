@@ -9,9 +9,11 @@
 - :mod:`shapeviewer.grasp.plan`: GraspIt-style planning (:func:`~shapeviewer.grasp.plan.plan`):
   a cheap search (:mod:`~shapeviewer.grasp.search`, on the hand's precomputed
   :mod:`~shapeviewer.grasp.samples` and the object's :mod:`~shapeviewer.grasp.object_field`), then
-  the best candidates executed in the pybullet world.
+  the best candidates executed in the pybullet world, then lifted (those that lift the mesh first).
 - :mod:`shapeviewer.grasp.execute`: the paper's execution on the true object, joint and pose
-  errors, and a dynamic lift test.
+  errors.
+- :mod:`shapeviewer.grasp.lift`: a dynamic lift test (the planner's lift check, and the
+  evaluation's lift of the true object).
 - :mod:`shapeviewer.grasp.robust`: each planned grasp re-closed on the CNN's sample completions,
   and the grasps ranked by how well they survive the completion's uncertainty.
 - :mod:`shapeviewer.grasp.serialize`: grasps to and from JSON, a pybullet-ready scene zip, headless planning.

@@ -20,8 +20,10 @@ NO_DATA_FILE = "(no capture files)"
 # The upload button's file filter (browsers match either the suffix or the MIME type).
 UPLOAD_MIME_TYPES = ".pcd,.ply,.png,.npy"
 MAX_UPLOAD_MB = 200
-# Algorithm 1's steps, as keys of the ``timings`` dict that ``detailed_mesh`` fills, with panel labels.
+# Algorithm 1's steps, as keys of the ``timings`` dict that ``completion_detailed_mesh`` fills, with
+# panel labels.
 ALGORITHM_1_STEPS = (
+    ("samples", "CNN, 8 mirrored views"),
     ("density", "density ratio"),
     ("upsample", "up-sample CNN output"),
     ("merge", "merge"),

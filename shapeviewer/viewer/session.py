@@ -38,7 +38,14 @@ from ..camera import Intrinsics
 from ..capture import Capture, CaptureError, load_capture
 from ..grasp.robust import sample_meshes
 from ..model import Completer
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, complete_points, confidence_figures
+from ..pipeline import (
+    Completion,
+    SegmentTooSmallError,
+    check_segment,
+    complete_points,
+    confidence_figures,
+    ensure_samples,
+)
 from ..processes import ProcessPool
 from ..reconstruct import fast_mesh
 from . import panel as P
@@ -476,7 +483,7 @@ class Session:
         steps: dict[str, float] = {}
         try:
             t0 = time.perf_counter()
-            mesh = self.res.pool.run(make_mesh, kind, c, scene, steps)
+            mesh = self.res.pool.run(make_mesh, kind, c, scene, steps, self.res.completer)
             seconds = time.perf_counter() - t0
             t0 = time.perf_counter()
             self.drawing.draw_mesh(scene, kind, sid, mesh)
@@ -554,7 +561,7 @@ class Session:
     def _ensure_samples(self, c: Completion) -> None:
         """Make ``c``'s sample completions (about 8 CNN passes) unless it has them."""
         if c.samples is None:
-            c.samples = self.res.pool.run(self.res.completer.predict_samples, c.grid_in, P.N_SAMPLES, context=c.context)
+            self.res.pool.run(ensure_samples, c, self.res.completer)
 
     # ------------------------------------------------------------------------------------------
     # Loading

@@ -16,8 +16,8 @@ import trimesh
 from ..baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..camera import transform_points
 from ..capture import MAX_CAPTURE_POINTS, Capture, decimate
-from ..pipeline import Completion, SegmentTooSmallError, check_segment
-from ..reconstruct import detailed_mesh
+from ..model import Completer
+from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
 from ..segment import Segment, Segmentation, segment_scene, world_frame
 
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
@@ -129,12 +129,15 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
     return LoadedScene(capture, seg, T, note, seg_seconds, {s.id: s for s in seg.segments}, points_world)
 
 
-def make_mesh(kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float]) -> trimesh.Trimesh:
+def make_mesh(
+    kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float], completer: Completer
+) -> trimesh.Trimesh:
     """Camera-frame mesh ``kind`` (``detailed``, ``partial``, ``hull`` or ``mirror``) of completion
-    ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds)."""
+    ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds); the detailed mesh asks
+    ``completer`` for ``c``'s sample completions if it has none yet."""
     points = scene.segments[c.segment_id].points_cam
     if kind == "detailed":
-        return detailed_mesh(c.probabilities, c.frame, points, timings=steps, support_plane=c.support_plane)
+        return completion_detailed_mesh(c, points, completer, timings=steps)
     if kind == "partial":
         return partial_mesh(points)
     if kind == "hull":

@@ -241,12 +241,13 @@ class GraspController:
             self._refresh_panel()
         self.host.show_layer("grasps", True)  # the user asked to see them
         n_fc = sum(g.force_closure for g in s.grasps)
+        n_up = sum(g.lift is not None and g.lift.success for g in s.grasps)
         if s.grasps:
             self.host.notify(
                 client,
                 "Grasps ready",
                 f"Segment {segment_id}: {len(s.grasps)} {hand} grasps "
-                f"({n_fc} force closure) on the {method} mesh in {seconds:.1f} s.",
+                f"({n_fc} force closure, {n_up} lift the mesh in simulation) on the {method} mesh in {seconds:.1f} s.",
                 "green",
             )
         else:
