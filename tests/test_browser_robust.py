@@ -50,6 +50,9 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
             job = app.plan_grasps(sid, "barrett", "fast", 3, seed=0)
             assert job is not None and job.error is None and job.result is not None and job.result.grasps
             lifts = [g.lift for g in job.result.grasps]
+            # The planner lifted its grasps on the fast mesh; the browser says how the selected one did.
+            assert all(lift is not None for lift in lifts)
+            wait_for_text(page, "Lift check on the fast mesh:", timeout=30)
             press(page, "Rank by robustness")  # waits until the button is enabled: there are grasps
             job = wait_until(
                 lambda: app.grasps.job if app.grasps.job.kind == "rank" else None, 20, "the click to start ranking"
