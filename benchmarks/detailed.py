@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     table = (
         [("voxelize + CNN", "cnn")]
         + [(f"  {label}", key) for key, label in STEPS]
-        + [("Algorithm 1 (sum of the steps)", "algorithm_1"), ("**end to end**", "total")]
+        + [("8 passes + Algorithm 1 (sum)", "algorithm_1"), ("**end to end**", "total")]
     )
     for label, key in table:
         med = statistics.median(rows[key])

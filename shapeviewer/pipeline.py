@@ -116,8 +116,8 @@ def completion_detailed_mesh(
 
     The occupancy it meshes is the mean of the network's answers for the 8 mirrored views
     (:func:`ensure_samples`), not the single answer the fast mesh shows: averaging removes part of
-    each answer's error (on the tabletop ablation's 60 views, J80 0.541 -> 0.548 and mean distance
-    4.69 -> 4.58 mm) for about 0.1 s, and the samples are then at hand for the Confidence layer.
+    each answer's error (the model card has the ablation) for about 0.1 s, and the samples are
+    then at hand for the Confidence layer.
     ``timings`` gets Algorithm 1's step times (seconds) and ``samples``, the CNN passes' (0 when
     ``c`` already had them)."""
     t0 = time.perf_counter()

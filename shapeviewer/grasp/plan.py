@@ -23,9 +23,9 @@ Units: metres and radians.
    that start in collision, touch the table, or leave a finger without object contact are dropped.
 3. The lift check: the best distinct grasps are lifted in a dynamic simulation on the same mesh
    (:func:`~shapeviewer.grasp.lift.lift_test`, gravity on, the fingers squeezing), and those that
-   pick the object up come first. Epsilon ignores gravity, the table and how the fingers squeeze:
-   planned on the true meshes of 30 tabletop views, the best grasp by epsilon lifted the object in
-   25, the best that passed this check in 29.
+   pick the object up come first. Epsilon ignores gravity, the table and how the fingers squeeze,
+   so even on a perfect mesh its best grasp can drop the object (``benchmarks/grasp_ceiling.py``
+   measures how often).
 
 Stage 1 is :func:`~shapeviewer.grasp.search.search`, on the hand's precomputed samples
 (:mod:`~shapeviewer.grasp.samples`) and the object's field (:mod:`~shapeviewer.grasp.object_field`).
