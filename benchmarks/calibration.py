@@ -68,7 +68,7 @@ def main() -> None:
         rates.append(err[d].mean())
         print(f"  {k + 1:2d}: {sd[d].mean():.3f} / {err[d].mean():.3f}")
     median = (rates[4] + rates[5]) / 2
-    print(f"top decile error rate / median deciles' (5th-6th) = {rates[9] / max(median, 1e-9):.1f}x")
+    print(f"top decile error rate / median deciles' (5th-6th) = {rates[9] / max(median, 1e-9):.2f}x")
     print(f"mean spread: observed side {sd[obs].mean():.4f}, unseen side {sd[~obs].mean():.4f}")
 
 
