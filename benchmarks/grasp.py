@@ -147,7 +147,7 @@ def main() -> None:
             f"{name:28s} {len(mesh.faces):6d} {s.seconds['total']:7.2f} {cpu:6.2f} {s.seconds['search']:7.2f}"
             f" {s.seconds['simulate']:6.2f} {s.evaluations:6d} {s.evaluations_per_second:8.0f} {s.simulated:6d}"
             f" {s.seconds.get('lift', 0.0):6.2f} {len(grasps):6d} {sum(g.force_closure for g in grasps):3d}"
-            f" {sum(g.lift is not None and g.lift.success for g in grasps):3d} {exec_ms:8.1f}"
+            f" {sum(g.lifted for g in grasps):3d} {exec_ms:8.1f}"
             f" {np.mean([e.joint_error for e in executed]):9.2f} {np.mean([e.pose_error for e in executed]):8.2f}"
             f" {row['lift']:7.3f} {sum(lifts):3d}/{len(lifts):<2d}"
         )

@@ -253,7 +253,7 @@ def cmd_grasp(args) -> int:
         budget_seconds=args.budget,
     )
     best = max((g.epsilon for g in grasps), default=float("nan"))
-    lifted = sum(g.lift is not None and g.lift.success for g in grasps)
+    lifted = sum(g.lifted for g in grasps)
     print(f"{len(grasps)} grasps (best epsilon {best:.3f}; {lifted} lift the mesh in simulation, first) -> {args.out}")
     return 0
 

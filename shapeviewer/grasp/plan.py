@@ -48,7 +48,7 @@ from shapeviewer.grasp.object_field import ObjectField
 from shapeviewer.grasp.quality import GraspQuality, grasp_quality
 from shapeviewer.grasp.samples import hand_samples
 from shapeviewer.grasp.search import CancelFn, PlanSettings, ProgressFn, distinct, search
-from shapeviewer.grasp.state import Grasp, GraspContact
+from shapeviewer.grasp.state import Grasp, GraspContact, lift_order
 from shapeviewer.grasp.world import ApproachResult, CloseResult, Decomposition, GraspWorld
 
 BACK_OFF = 0.2  # m: the protocol backs the open hand off this far along the approach (SPEC section 8)
@@ -285,7 +285,7 @@ def _lift_checked(
         g.lift = lift_test(g, mesh_world, table=table)
         lifted += g.lift.success
         report(min(1.0, (k + 1) / max(1, min(n, len(ranked)))))
-    order = sorted(ranked, key=lambda g: 1 if g.lift is None else 0 if g.lift.success else 2)
+    order = sorted(ranked, key=lambda g: lift_order(g.lift))
     return order[:n], stopped
 
 

@@ -53,7 +53,7 @@ from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.plan import APPROACH_SLACK, BACK_OFF, approach_and_close, object_contacts
 from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
-from shapeviewer.grasp.state import Grasp, LiftResult
+from shapeviewer.grasp.state import Grasp, LiftResult, lift_order
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition, mesh_hash
 from shapeviewer.reconstruct import fast_mesh
 from shapeviewer.voxel import GridFrame
@@ -239,12 +239,8 @@ def rank_robust(scores: Sequence[Robustness], lifts: Sequence[LiftResult | None]
     the grasps that lifted the mesh come first, then those not checked, then those that dropped it,
     each group by robustness: a grasp that drops the completion in simulation is no one's best,
     however many samples it closes on."""
-
-    def group(i: int) -> int:
-        lift = None if lifts is None else lifts[i]
-        return 1 if lift is None else 0 if lift.success else 2
-
-    return sorted(range(len(scores)), key=lambda i: (group(i), -scores[i].fraction, -scores[i].epsilon_low))
+    order = [lift_order(None if lifts is None else lifts[i]) for i in range(len(scores))]
+    return sorted(range(len(scores)), key=lambda i: (order[i], -scores[i].fraction, -scores[i].epsilon_low))
 
 
 def sample_meshes(samples: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray) -> list[trimesh.Trimesh]:

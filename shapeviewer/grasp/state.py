@@ -45,6 +45,12 @@ class LiftResult:
     slip: float
 
 
+def lift_order(lift: LiftResult | None) -> int:
+    """Where the planner's lift check puts a grasp: 0 it lifted the mesh, 1 not checked, 2 it
+    dropped the mesh (a sort key: those that lift first)."""
+    return 1 if lift is None else 0 if lift.success else 2
+
+
 @dataclass(eq=False)
 class HandState:
     """A hand on an object.
@@ -93,3 +99,8 @@ class Grasp(HandState):
     energy: float
     frame: str = "world"
     lift: LiftResult | None = None
+
+    @property
+    def lifted(self) -> bool:
+        """The planner's lift check ran and the grasp picked the mesh up."""
+        return self.lift is not None and self.lift.success

@@ -11,11 +11,12 @@ from dataclasses import dataclass
 import viser
 
 from ..export import MESH_FORMATS
+from ..model import SYMMETRIES
 from ..pipeline import GUESS_SPREAD, Completion
 from .state import MESH_KINDS, MESH_TITLES
 
 NO_SEGMENT = "(none)"
-N_SAMPLES = 8  # sample completions behind the Confidence layer and the Sample slider
+N_SAMPLES = len(SYMMETRIES)  # sample completions behind the Confidence layer and the Sample slider
 NO_DATA_FILE = "(no capture files)"
 # The upload button's file filter (browsers match either the suffix or the MIME type).
 UPLOAD_MIME_TYPES = ".pcd,.ply,.png,.npy"

@@ -241,7 +241,7 @@ class GraspController:
             self._refresh_panel()
         self.host.show_layer("grasps", True)  # the user asked to see them
         n_fc = sum(g.force_closure for g in s.grasps)
-        n_up = sum(g.lift is not None and g.lift.success for g in s.grasps)
+        n_up = sum(g.lifted for g in s.grasps)
         if s.grasps:
             self.host.notify(
                 client,

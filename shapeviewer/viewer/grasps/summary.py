@@ -52,7 +52,7 @@ def grasp_options(s: SegmentGrasps) -> dict[str, int]:
     for k in order:
         g = s.grasps[k]
         entry = f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)")
-        entry += " · lifts" if g.lift is not None and g.lift.success else ""
+        entry += " · lifts" if g.lifted else ""
         options[entry + ("" if s.robustness is None else f" · {_holds(s.robustness[k])}")] = k
     return options
 
