@@ -317,6 +317,7 @@ def cmd_train(args) -> int:
         width=args.width,
         in_channels=args.in_channels,
         init=args.init,
+        jaccard_weight=args.jaccard_weight,
     )
     print(json.dumps(train(args.data, args.run, cfg), indent=1))
     return 0
@@ -480,6 +481,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--init", default=None, help="weights to start from (a narrower unet3d, or one with fewer inputs, is widened)"
+    )
+    s.add_argument(
+        "--jaccard-weight",
+        type=float,
+        default=0.0,
+        help="add this many times (1 - soft Jaccard) per example to the summed cross-entropy "
+        "(0 = the paper's loss; it weighs thin-walled objects as much as large ones)",
     )
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)

@@ -192,6 +192,10 @@ def complete(
 ) -> trimesh.Trimesh:
     """Complete one object's points into a closed mesh: the one entry point every caller uses.
 
+    The points are first cut as the app's segmentation would have cut them
+    (:func:`segment.isolate`: above the table's bottom band, the largest cluster), so a mask from
+    known poses or a detector completes like the segments the network learnt from.
+
     Args:
         points_cam: (N, 3) the object's observed points, camera optical frame (x right, y down,
             z forward), metres; non-finite rows are ignored.
@@ -212,15 +216,21 @@ def complete(
     """
     if mode not in ("fast", "detailed"):
         raise ValueError(f"mode must be 'fast' or 'detailed', got {mode!r}")
+    from .segment import isolate
+
     completer = completer or _shipped_completer()
-    c = complete_points([points_cam], completer, support_plane=support_plane)[0]
+    pts = check_segment(points_cam)
+    kept = pts[isolate(pts, support_plane=support_plane)]
+    if len(kept) >= MIN_SEGMENT_POINTS:
+        pts = kept
+    c = complete_points([pts], completer, support_plane=support_plane)[0]
     if mode == "fast":
         if c.fast_mesh is None:
             from .reconstruct import EmptyCompletionError
 
             raise EmptyCompletionError(c.error or "the completion is empty")
         return c.fast_mesh
-    return completion_detailed_mesh(c, check_segment(points_cam), completer)
+    return completion_detailed_mesh(c, pts, completer)
 
 
 @lru_cache(maxsize=1)

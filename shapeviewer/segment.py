@@ -225,6 +225,46 @@ def segment_scene(
     return Segmentation(segments, plane, T_world_cam, timings, table)
 
 
+def isolate(
+    points_cam: np.ndarray,
+    *,
+    support_plane: np.ndarray | None = None,
+    voxel_size: float = 0.01,
+    cluster_tolerance: float = 0.025,
+    min_height: float = 0.015,
+    max_height: float = 0.5,
+) -> np.ndarray:
+    """Which of one object's points (N, 3), camera frame, metres, :func:`segment_scene` would have
+    kept as its segment: (N,) bool.
+
+    Points from elsewhere (a mask from known poses, a detector's box) also hold the table's edge
+    around the object, the bottom ``min_height`` of the object, and stray depth pixels; the network
+    only ever saw segments without them. So, with the same parameters as :func:`segment_scene`: with a
+    ``support_plane`` ``(a, b, c, d)`` (camera frame), only points ``min_height``..``max_height`` above
+    it count; of those, the largest Euclidean cluster is kept. Non-finite points are never kept. When
+    this leaves fewer than a tenth of the finite points, every finite point is kept instead (a flat
+    object, such as a plate, lies almost wholly in the band)."""
+    from .voxel import unit_plane
+
+    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    finite = np.asarray(np.isfinite(pts).all(axis=1))
+    keep = finite.copy()
+    if support_plane is not None:
+        normal, d = unit_plane(support_plane)
+        height = np.where(finite, np.nan_to_num(pts) @ normal + d, np.nan)
+        with np.errstate(invalid="ignore"):
+            keep &= (height >= min_height) & (height <= max_height)
+    idx = np.flatnonzero(keep)
+    if len(idx):
+        inverse, centroids = _voxel_downsample(pts[idx], voxel_size)
+        labels = _euclidean_clusters(centroids, max(cluster_tolerance, voxel_size))[inverse]
+        keep[:] = False
+        keep[idx[labels == np.bincount(labels).argmax()]] = True
+    if keep.sum() < 0.1 * finite.sum():
+        return finite
+    return keep
+
+
 def world_frame(capture: Capture, segmentation: Segmentation) -> tuple[np.ndarray, str]:
     """``(T_world_cam, what it is)``: the 4x4 camera pose (metres) to show and export a capture in.
 

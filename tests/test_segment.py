@@ -10,7 +10,7 @@ import pytest
 
 from shapeviewer.camera import look_at, transform_points
 from shapeviewer.capture import Capture, load_capture
-from shapeviewer.segment import SegmentationError, segment_scene, table_frame
+from shapeviewer.segment import SegmentationError, isolate, segment_scene, table_frame
 
 SPACING = 0.005  # m between synthetic surface samples
 
@@ -101,6 +101,27 @@ def test_size_filters_and_height_band() -> None:
     assert not set(np.concatenate([s.indices for s in seg.segments])) & set(np.flatnonzero(truth >= 3))
     assert len(segment_scene(points, max_extent=1.0).segments) == 4  # the wall is back
     assert len(segment_scene(points, min_points=20).segments) == 4  # the crumb is back
+
+
+def test_isolate_cuts_one_object_as_the_segmentation_would() -> None:
+    """A mask-like selection of the cylinder (its points, the table ring around its foot, stray
+    depth pixels 30 cm behind it) keeps exactly the cylinder's points above the 1.5 cm band."""
+    points, labels, T_world_cam = _scene()
+    world = transform_points(T_world_cam, np.nan_to_num(points))
+    near_foot = (labels == -1) & (np.hypot(world[:, 0], world[:, 1]) < 0.06)
+    cylinder, ring = points[labels == 1], points[near_foot]
+    stray = transform_points(np.linalg.inv(T_world_cam), np.array([[0.0, 0.3, 0.05], [0.01, 0.31, 0.06]]))
+    mask = np.concatenate([cylinder, ring, stray, np.full((3, 3), np.nan)])
+    plane_cam = T_world_cam.T @ np.array([0.0, 0.0, 1.0, 0.0])  # the table z = 0, normal up
+    kept = isolate(mask, support_plane=plane_cam)
+    expected = np.zeros(len(mask), bool)
+    expected[: len(cylinder)] = world[labels == 1][:, 2] >= 0.015
+    assert np.array_equal(kept, expected)
+    # Without a plane nothing is cut by height; the largest cluster (cylinder and ring) still drops
+    # the strays and the NaNs.
+    assert np.array_equal(isolate(mask), np.arange(len(mask)) < len(cylinder) + len(ring))
+    # A flat object (a plate lying in the band) keeps all its finite points.
+    assert isolate(ring, support_plane=plane_cam).all()
 
 
 def test_table_frame_is_a_rigid_table_aligned_frame() -> None:

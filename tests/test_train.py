@@ -14,6 +14,7 @@ from shapeviewer.train import (
     evaluate_grids,
     jaccard_grids,
     load_grid_sets,
+    soft_jaccard_loss,
     train,
     warm_start,
 )
@@ -34,7 +35,9 @@ def tiny_data(tmp_path_factory):
 
 def test_a_few_training_steps_lower_the_loss_and_checkpoints_round_trip(tiny_data, tmp_path):
     run = tmp_path / "run"
-    cfg = TrainConfig(steps=12, batch_size=4, lr=1e-3, eval_every=6, eval_views=8, checkpoint_every=6)
+    cfg = TrainConfig(
+        steps=12, batch_size=4, lr=1e-3, eval_every=6, eval_views=8, checkpoint_every=6, jaccard_weight=1000.0
+    )
     train(tiny_data, run, cfg, progress=False)
     rows = list(csv.DictReader(open(run / "log.csv")))
     assert [int(r["step"]) for r in rows] == [6, 12]
@@ -107,6 +110,22 @@ def test_loss_is_the_papers_summed_bce():
     logits = torch.zeros(2, 1, 40, 40, 40)
     target = torch.ones(2, 1, 40, 40, 40)
     assert bce_loss(logits, target).item() == pytest.approx(64000 * np.log(2), rel=1e-5)
+
+
+def test_soft_jaccard_loss_weighs_a_thin_shell_as_much_as_a_large_solid():
+    big, thin = torch.zeros(1, 1, 40, 40, 40), torch.zeros(1, 1, 40, 40, 40)
+    big[..., 5:35, 5:35, 5:35] = 1
+    thin[..., 10:30, 10:30, 10] = 1
+    sure = lambda t: (t * 2 - 1) * 20  # noqa: E731  logits of a confident, exact answer
+    assert soft_jaccard_loss(sure(big), big).item() == pytest.approx(0.0, abs=1e-6)
+    # Missing half of each object costs both the same: half their Jaccard.
+    half_big, half_thin = big.clone(), thin.clone()
+    half_big[..., 5:20, :, :] = 0
+    half_thin[..., 10:20, :, :] = 0
+    assert soft_jaccard_loss(sure(half_big), big).item() == pytest.approx(0.5, abs=1e-3)
+    assert soft_jaccard_loss(sure(half_thin), thin).item() == pytest.approx(0.5, abs=1e-3)
+    # The summed cross-entropy charges the large solid 67 times as much for the same share missed.
+    assert bce_loss(sure(half_big), big).item() > 60 * bce_loss(sure(half_thin), thin).item()
 
 
 def test_jaccard_of_grids():
