@@ -14,6 +14,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "complete": ".pipeline",
     "load_capture": ".capture",
     "segment_scene": ".segment",
+    "isolate": ".segment",
     "partial_to_grid": ".voxel",
     "context_grids": ".voxel",
     "GridFrame": ".voxel",
