@@ -34,7 +34,7 @@ def main() -> None:
 
     from shapeviewer.capture import Capture
     from shapeviewer.evaluation.results import ResultsStore
-    from shapeviewer.evaluation.run import build_sample_store, sample_store_complete, sample_store_dir
+    from shapeviewer.evaluation.sample_store import build_sample_store, sample_store_complete, sample_store_dir
     from shapeviewer.viewer import ViewerApp
 
     root = args.results or sample_store_dir()

@@ -1,5 +1,6 @@
 """Running the evaluation: per-view completions (Tables I-III, SPEC §7), the grasp stage (Tables IV
-and V, SPEC §8), the runner over local processes or a Ray cluster, and the Dataset tab's sample store.
+and V, SPEC §8), and the runner over local processes or a Ray cluster
+(the Dataset tab's sample store is :mod:`.sample_store`).
 
 Test views: :mod:`.viewsets` (``paper``: the paper's three view sets of floating objects, rendered
 exactly as the training data is; ``tabletop``: robot views of a table, segmented by the app).
@@ -37,8 +38,6 @@ grasp files, ``rows.csv`` (completion rows), ``grasp_rows.csv`` (one row per exe
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import logging
 import math
 import multiprocessing as mp
@@ -46,7 +45,6 @@ import os
 import time
 import traceback
 import zlib
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -82,7 +80,7 @@ from .tables import (
     summarize_grasps,
     write_tables_csv,
 )
-from .viewsets import render_view, sample_views, view_set_of
+from .viewsets import render_view, sample_views
 
 if TYPE_CHECKING:  # imported lazily at run time: pybullet is heavy
     from ..grasp.plan import PlanSettings
@@ -422,7 +420,7 @@ def pending_grasps(record: dict, options: GraspOptions) -> list[str]:
 # One view's work (shared by the runner and the sample store)
 
 
-def _complete(out_dir, name: str, view: int, view_set: str, seed: int, completer) -> dict:
+def complete_view(out_dir, name: str, view: int, view_set: str, seed: int, completer) -> dict:
     """Compute and save a view's completions; returns its record."""
     rows = evaluate_view(name, view, completer, out_dir, seed=seed, view_set=view_set)
     record = view_record(out_dir, name, view, view_set, seed, rows)
@@ -430,7 +428,7 @@ def _complete(out_dir, name: str, view: int, view_set: str, seed: int, completer
     return record
 
 
-def _grasp(out_dir, record: dict, method: str, options: GraspOptions) -> None:
+def grasp_and_save(out_dir, record: dict, method: str, options: GraspOptions) -> None:
     """Grasp one method of a view and save the record (an interrupted run loses at most this method)."""
     set_grasp_entry(record, grasp_view(out_dir, record, method, options))
     save_view(out_dir, record)
@@ -464,10 +462,10 @@ def _run_one(task) -> str:
     name, view, view_set, out_dir, seed, options = task
     record = load_view(out_dir, name, view, seed)
     if record is None:
-        record = _complete(out_dir, name, view, view_set, seed, _completer())
+        record = complete_view(out_dir, name, view, view_set, seed, _completer())
     if options is not None:
         for method in pending_grasps(record, options):
-            _grasp(out_dir, record, method, options)
+            grasp_and_save(out_dir, record, method, options)
     return name
 
 
@@ -603,108 +601,3 @@ def evaluate(
         **write_tables(out, sample, seed, n_per_set),
         "seconds": time.perf_counter() - t0,
     }
-
-
-# ----------------------------------------------------------------------------------------------
-# The sample store: a few views for a first look in the Dataset tab (``python app.py`` without --results)
-
-# Household YCB objects of both model splits and a pybullet toy, views from all three evaluation
-# sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
-SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
-    ("ycb/021_bleach_cleanser", 0),
-    ("ycb/021_bleach_cleanser", 120),
-    ("ycb/006_mustard_bottle", 100),
-    ("ycb/006_mustard_bottle", 420),
-    ("ycb/025_mug", 180),
-    ("ycb/025_mug", 0),
-    ("ycb/035_power_drill", 300),
-    ("pybullet/duck", 0),
-    ("ycb/025_mug", 10_003),
-    ("household/spray_bottle_004", 10_001),
-    ("household/bowl_003", 10_002),
-)
-SAMPLE_VERSION = 2
-SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
-
-
-def sample_grasp_options() -> GraspOptions:
-    """Grasps of the sample store: 5 Barrett grasps per completion from a smaller (still
-    deterministic) search than the evaluation's, about 5 s per view and method on 2 cores."""
-    from ..grasp.plan import PlanSettings
-
-    return GraspOptions(n_grasps=5, settings=PlanSettings(samples=256, chains=16, steps=100, simulate=15))
-
-
-def sample_store_dir(weights: str | Path | None = None) -> Path:
-    """Where the sample store of the given CNN weights lives (under :func:`catalogue.cache_dir`).
-
-    The folder name holds a hash of the weights file, so new weights get a new sample store.
-    """
-    from ..model import DEFAULT_WEIGHTS
-
-    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
-    tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
-    return catalogue.cache_dir() / f"results_sample_v{SAMPLE_VERSION}_{tag}"
-
-
-def sample_store_complete(root: str | Path) -> bool:
-    return (Path(root) / SAMPLE_DONE).is_file()
-
-
-def build_sample_store(
-    root: str | Path,
-    *,
-    views: Iterable[tuple[str, int]] = SAMPLE_VIEWS,
-    weights=None,
-    seed: int = 0,
-    progress: Callable[[int, int, str], None] | None = None,
-    completer=None,
-    grasps: GraspOptions | bool | None = True,
-):
-    """Evaluate ``views`` as :func:`evaluate` does into a results store (returned, a
-    :class:`~.results.ResultsStore`): first every view's completions, then (``grasps``: True for
-    :func:`sample_grasp_options`, a :class:`GraspOptions`, or None) grasps planned on each and
-    executed on the truth.
-
-    Finished work is skipped, so an interrupted build resumes. ``progress(done, total, what)`` is
-    called before each step and at the end; the store is synced after every step so that a reader
-    sees the views as they arrive. Writes the :data:`SAMPLE_DONE` marker when all is done.
-    """
-    from .results import ResultsStore
-
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
-    store = ResultsStore(root)
-    views = list(views)
-    options = sample_grasp_options() if grasps is True else (grasps or None)
-    total = len(views) * (2 if options is not None else 1)
-    done = 0
-
-    def step(what: str) -> None:
-        if progress is not None:
-            progress(done, total, what)
-
-    records = {}
-    for name, view in views:
-        record = load_view(root, name, view, seed)
-        if record is None:
-            step(f"completing {name} view {view}")
-            if completer is None:
-                from ..model import load_completer
-
-                completer = load_completer(weights)
-            record = _complete(root, name, view, view_set_of(name, view), seed, completer)
-            store.sync()
-        records[(name, view)] = record
-        done += 1
-    if options is not None:
-        for name, view in views:
-            record = records[(name, view)]
-            for method in pending_grasps(record, options):
-                step(f"grasping {name} view {view} ({method})")
-                _grasp(root, record, method, options)
-                store.sync()
-            done += 1
-    atomic_write(root / SAMPLE_DONE, json.dumps({"views": views, "grasps": options is not None}))
-    step("done")
-    return store

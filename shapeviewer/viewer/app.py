@@ -25,7 +25,7 @@ from PIL import Image
 
 from ..camera import Intrinsics
 from ..capture import Capture, load_capture
-from ..evaluation.run import sample_store_complete, sample_store_dir
+from ..evaluation.sample_store import sample_store_complete, sample_store_dir
 from ..model import load_completer, training_curves
 from ..processes import ProcessPool
 from . import panel as P

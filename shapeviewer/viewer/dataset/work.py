@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import viser
 
-from ...evaluation.run import build_sample_store
+from ...evaluation.sample_store import build_sample_store
 from ...evaluation.summaries import ObjectSummary
 from .summary import bars_png, worst_first
 
