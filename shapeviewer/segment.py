@@ -10,8 +10,9 @@ Everything is in the camera optical frame (metres; x right, y down, z forward):
 3. keep the points between ``min_height`` and ``max_height`` above the plane, on the camera's side;
 4. voxel-downsample them, join voxel centroids closer than ``cluster_tolerance`` (Euclidean
    clustering is the connected components of that graph) and give every point its voxel's cluster;
-5. drop clusters of fewer than ``min_points`` points or whose bounding box is longer than
-   ``max_extent`` (walls, furniture), and number the rest left to right in the image.
+5. drop each cluster's flying pixels (:func:`flying_pixels`), then the clusters of fewer than
+   ``min_points`` points or whose bounding box is longer than ``max_extent`` (walls, furniture),
+   and number the rest left to right in the image.
 
 The RANSAC is our own vectorised numpy one: Open3D's ``segment_plane`` runs its iterations on
 several threads and returns different planes for the same seed.
@@ -29,6 +30,13 @@ from .capture import Capture
 # Occupied voxels clustered at most (see segment_scene's max_voxels): 200k voxels with their
 # 2.5 cm neighbourhoods take about a second; real 640x480 tabletop frames have 300-5,000.
 MAX_VOXELS = 200_000
+# Flying pixels: silhouette pixels a depth camera puts between an object and what lies behind it
+# (RealSense-style sensors make many). They trail off the surface in ones and twos, while a point
+# on any surface, even at its edge or on a one-pixel-wide handle, has neighbours within a few point
+# spacings. Removing them from the segments brought completions of RealSense views up to those of
+# Kinect views (model card).
+FLYING_RADIUS = 3.0  # neighbourhood radius, in the segment's median nearest-neighbour distances
+FLYING_NEIGHBOURS = 6  # fewer other points than this within it: a flying pixel
 # Up to this many planes are tried when looking for a horizontal one (a wall may be larger).
 _MAX_PLANES = 3
 # A support plane faces the camera's up (-y) within this many degrees.
@@ -241,7 +249,8 @@ def isolate(
     around the object, the bottom ``min_height`` of the object, and stray depth pixels; the network
     only ever saw segments without them. So, with the same parameters as :func:`segment_scene`: with a
     ``support_plane`` ``(a, b, c, d)`` (camera frame), only points ``min_height``..``max_height`` above
-    it count; of those, the largest Euclidean cluster is kept. Non-finite points are never kept. When
+    it count; of those, the largest Euclidean cluster is kept, without its :func:`flying_pixels`.
+    Non-finite points are never kept. When
     this leaves fewer than a tenth of the finite points, every finite point is kept instead (a flat
     object, such as a plate, lies almost wholly in the band)."""
     from .voxel import unit_plane
@@ -259,7 +268,8 @@ def isolate(
         inverse, centroids = _voxel_downsample(pts[idx], voxel_size)
         labels = _euclidean_clusters(centroids, max(cluster_tolerance, voxel_size))[inverse]
         keep[:] = False
-        keep[idx[labels == np.bincount(labels).argmax()]] = True
+        largest = idx[labels == np.bincount(labels).argmax()]
+        keep[largest[~flying_pixels(pts[largest])]] = True
     if keep.sum() < 0.1 * finite.sum():
         return finite
     return keep
@@ -395,6 +405,24 @@ def _voxel_downsample(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray
     return inverse, sums / counts[:, None]
 
 
+def flying_pixels(points_cam: np.ndarray) -> np.ndarray:
+    """Which of one object's points (N, 3), camera frame, metres, are flying pixels: (N,) bool.
+
+    A point is one when fewer than :data:`FLYING_NEIGHBOURS` other points lie within
+    :data:`FLYING_RADIUS` times the points' median nearest-neighbour distance of it."""
+    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    if len(pts) <= FLYING_NEIGHBOURS:
+        return np.zeros(len(pts), dtype=bool)
+    from scipy.spatial import cKDTree
+
+    # Distances to each point's nearest FLYING_NEIGHBOURS others (column 0 is the point itself).
+    distances = cKDTree(pts).query(pts, FLYING_NEIGHBOURS + 1)[0]
+    spacing = float(np.median(distances[:, 1]))
+    if spacing <= 0:  # more than half the points repeat: nothing to measure against
+        return np.zeros(len(pts), dtype=bool)
+    return distances[:, FLYING_NEIGHBOURS] > FLYING_RADIUS * spacing
+
+
 def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:
     """(N,) cluster label of every point: the connected components of "closer than ``tolerance``"."""
     from scipy.sparse import coo_matrix
@@ -411,14 +439,19 @@ def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:
 def _make_segments(
     idx: np.ndarray, points: np.ndarray, labels: np.ndarray, min_points: int, max_extent: float
 ) -> list[Segment]:
-    """Segments of the clusters that pass the size tests, numbered by the image column of their centroid."""
+    """Segments of the clusters that pass the size tests (after their :func:`flying_pixels` are
+    dropped), numbered by the image column of their centroid."""
     counts = np.bincount(labels, minlength=1)
     kept = []
     for label in np.flatnonzero(counts >= max(min_points, 1)):
         members = np.flatnonzero(labels == label)  # few clusters pass: cheaper than sorting all labels
         pts = points[members]
+        if float((pts.max(axis=0) - pts.min(axis=0)).max()) > max_extent:
+            continue
+        members = members[~flying_pixels(pts)]
+        pts = points[members]
         size = float((pts.max(axis=0) - pts.min(axis=0)).max())
-        if size <= max_extent:
+        if len(members) >= max(min_points, 1):
             centre = pts.mean(axis=0)
             kept.append((centre[0] / centre[2], -len(members), idx[members], pts, size))
     kept.sort(key=lambda k: k[:2])
