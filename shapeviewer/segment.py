@@ -30,6 +30,11 @@ from .capture import Capture
 # Occupied voxels clustered at most (see segment_scene's max_voxels): 200k voxels with their
 # 2.5 cm neighbourhoods take about a second; real 640x480 tabletop frames have 300-5,000.
 MAX_VOXELS = 200_000
+# Defaults that segment_scene and isolate share, so that a segment cut by either looks the same.
+VOXEL_SIZE = 0.01  # m: voxels clustered
+CLUSTER_TOLERANCE = 0.025  # m: the largest gap inside one cluster
+MIN_HEIGHT = 0.015  # m above the support plane: lower points are left to the table
+MAX_HEIGHT = 0.5  # m above the support plane
 # Flying pixels: silhouette pixels a depth camera puts between an object and what lies behind it
 # (RealSense-style sensors make many). They trail off the surface in ones and twos, while a point
 # on any surface, even at its edge or on a one-pixel-wide handle, has neighbours within a few point
@@ -121,13 +126,13 @@ class Segmentation:
 def segment_scene(
     capture_or_points: Capture | np.ndarray,
     *,
-    voxel_size: float = 0.01,
+    voxel_size: float = VOXEL_SIZE,
     plane_distance: float = 0.01,
-    cluster_tolerance: float = 0.025,
+    cluster_tolerance: float = CLUSTER_TOLERANCE,
     min_points: int = 200,
     max_extent: float = 0.5,
-    min_height: float = 0.015,
-    max_height: float = 0.5,
+    min_height: float = MIN_HEIGHT,
+    max_height: float = MAX_HEIGHT,
     max_range: float = 3.0,
     min_plane_fraction: float = 0.1,
     min_plane_extent: float = 0.4,
@@ -237,22 +242,21 @@ def isolate(
     points_cam: np.ndarray,
     *,
     support_plane: np.ndarray | None = None,
-    voxel_size: float = 0.01,
-    cluster_tolerance: float = 0.025,
-    min_height: float = 0.015,
-    max_height: float = 0.5,
+    voxel_size: float = VOXEL_SIZE,
+    cluster_tolerance: float = CLUSTER_TOLERANCE,
+    min_height: float = MIN_HEIGHT,
+    max_height: float = MAX_HEIGHT,
 ) -> np.ndarray:
     """Which of one object's points (N, 3), camera frame, metres, :func:`segment_scene` would have
     kept as its segment: (N,) bool.
 
     Points from elsewhere (a mask from known poses, a detector's box) also hold the table's edge
     around the object, the bottom ``min_height`` of the object, and stray depth pixels; the network
-    only ever saw segments without them. So, with the same parameters as :func:`segment_scene`: with a
+    only ever saw segments without them. So, with the same defaults as :func:`segment_scene`: with a
     ``support_plane`` ``(a, b, c, d)`` (camera frame), only points ``min_height``..``max_height`` above
     it count; of those, the largest Euclidean cluster is kept, without its :func:`flying_pixels`.
-    Non-finite points are never kept. When
-    this leaves fewer than a tenth of the finite points, every finite point is kept instead (a flat
-    object, such as a plate, lies almost wholly in the band)."""
+    Non-finite points are never kept. When this leaves fewer than a tenth of the finite points, every
+    finite point is kept instead (a flat object, such as a plate, lies almost wholly in the band)."""
     from .voxel import unit_plane
 
     pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
