@@ -1,7 +1,8 @@
 """Is the completion's uncertainty calibrated? (issue 14) On held-out grids of generated data:
 
 * reliability of the mean probability (expected calibration error over 10 bins);
-* error rate per decile of the samples' per-voxel spread (std over ``Completer.predict_samples``),
+* error rate per decile of the samples' per-voxel spread (``model.sample_spread`` of
+  ``Completer.predict_samples``; ``--plain-std``: the plain std of their probabilities),
   over the *active* voxels (any sample above 0.05, or truly occupied): voxels of the top decile
   should be wrong far more often than those around the median;
 * mean spread on the observed side (within one voxel of an observed voxel) against the unseen side
@@ -18,7 +19,7 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from shapeviewer.model import load_completer
+from shapeviewer.model import load_completer, sample_spread
 from shapeviewer.train import load_grid_sets
 
 
@@ -30,6 +31,7 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--set", default="holdout_model", choices=["training_view", "holdout_view", "holdout_model"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--plain-std", action="store_true", help="rank by the std of the probabilities instead")
     args = ap.parse_args()
     completer = load_completer(args.weights)
     gs = load_grid_sets(args.data)[args.set]
@@ -43,7 +45,7 @@ def main() -> None:
             t0 = time.perf_counter()
             s = completer.predict_samples(x[b], args.samples, context=ctx[b])
             times.append(time.perf_counter() - t0)
-            mean, sd = s.mean(0), s.std(0)
+            mean, sd = s.mean(0), (s.std(0) if args.plain_std else sample_spread(s))
             active = (s > 0.05).any(0) | y[b]
             spreads.append(sd[active])
             errors.append(((mean > 0.5) != y[b])[active])

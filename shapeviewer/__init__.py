@@ -19,6 +19,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "context_grids": ".voxel",
     "GridFrame": ".voxel",
     "load_completer": ".model",
+    "sample_spread": ".model",
     "fast_mesh": ".reconstruct",
     "detailed_mesh": ".reconstruct",
     "partial_mesh": ".baselines",

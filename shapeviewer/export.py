@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -69,11 +70,14 @@ def grids_npz_bytes(
     ``grid_to_camera`` (4x4, grid coordinates -> camera metres; voxel (i,j,k) centre at (i,j,k)+0.5),
     ``T_world_cam`` (4x4) and ``frame_json``; with ``samples`` ((n, 40, 40, 40) sample completions,
     :meth:`~shapeviewer.model.Completer.predict_samples`) also ``samples`` (float16) and ``spread``
-    (float32, their per-voxel standard deviation: the completion's uncertainty)."""
-    arrays = {}
+    (float32, their per-voxel disagreement, :func:`~shapeviewer.model.sample_spread`: the
+    completion's uncertainty)."""
+    arrays: dict[str, Any] = {}
     if samples is not None:
+        from .model import sample_spread  # torch is loaded only by callers that have samples
+
         samples = np.asarray(samples, np.float32)
-        arrays = {"samples": samples.astype(np.float16), "spread": samples.std(axis=0)}
+        arrays = {"samples": samples.astype(np.float16), "spread": sample_spread(samples)}
     buf = io.BytesIO()
     np.savez_compressed(
         buf,

@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from .model import SYMMETRIES, Completer
+from .model import SYMMETRIES, Completer, sample_spread
 from .reconstruct import detailed_mesh, fast_mesh
 from .voxel import GridFrame, context_grids, partial_to_grid
 
@@ -71,9 +71,9 @@ class Completion:
 
     @property
     def spread(self) -> np.ndarray | None:
-        """(40, 40, 40) float32 per-voxel std of the ``samples``' probabilities (the uncertainty),
-        None before samples are computed."""
-        return None if self.samples is None else self.samples.std(axis=0)
+        """(40, 40, 40) float32 per-voxel disagreement of the ``samples`` (the uncertainty,
+        :func:`~shapeviewer.model.sample_spread`), None before samples are computed."""
+        return None if self.samples is None else sample_spread(self.samples)
 
 
 # A completed voxel whose samples' probabilities spread more than this is a guess, not seen.

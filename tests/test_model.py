@@ -66,6 +66,7 @@ def test_varley2017_is_the_papers_network_and_trains_on_cpu():
 def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     from scipy import ndimage
 
+    from shapeviewer.model import sample_spread
     from shapeviewer.sim.tabletop import render_tabletop_view
     from shapeviewer.voxel import context_grids, partial_to_grid
 
@@ -77,7 +78,7 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     assert samples.shape == (8, 40, 40, 40) and samples.dtype == np.float32
     assert np.array_equal(samples[0], c.predict(grid, context=ctx))  # sample 0 is the best estimate
     assert not (samples[:, ctx.any(axis=0)] > 0).any()  # no sample fills known-empty space
-    spread = samples.std(axis=0)
+    spread = sample_spread(samples)
     active = (samples > 0.05).any(axis=0)
     seen = ndimage.binary_dilation(grid) & active
     assert spread.max() > 0.1 and spread[seen].mean() < spread[active & ~seen].mean()
@@ -85,3 +86,15 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     assert batch.shape == (3, 2, 40, 40, 40) and np.allclose(batch[:, 0], samples[:3], atol=1e-6)
     with pytest.raises(ValueError, match="between 1 and 8"):
         c.predict_samples(grid, 9)
+
+
+def test_sample_spread_counts_disagreement_about_occupancy_not_about_probability():
+    """Two samples that decide differently (0.45 and 0.55) are less sure of a voxel than two that
+    both call it empty (0.05 and 0.35), though their probabilities differ less; full agreement is
+    no spread, an even split the most."""
+    from shapeviewer.model import sample_spread
+
+    samples = np.array([[0.45, 0.05, 0.9, 0.0], [0.55, 0.35, 0.9, 1.0]], dtype=np.float32)
+    split, agree, same, opposite = sample_spread(samples)
+    assert split > agree and same == 0.0 and opposite == pytest.approx(0.5)
+    assert sample_spread(samples[:, None]).shape == (1, 4)

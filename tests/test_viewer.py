@@ -307,7 +307,7 @@ def test_confidence_layer_shades_the_output_by_the_samples_spread(app):
     box = app.panel.layers["confidence"]
     box.value = True  # the checkbox's handler computes the samples of every completion
     try:
-        from shapeviewer.viewer.visuals import spread_colors
+        from shapeviewer.viewer.visuals import SPREAD_FULL_SCALE, spread_colors
 
         assert c.samples is not None and c.samples.shape == (8, 40, 40, 40)
         handle = node(app, f"/confidence/seg_{sid}")
@@ -315,7 +315,7 @@ def test_confidence_layer_shades_the_output_by_the_samples_spread(app):
         colours = np.asarray(handle.batched_colors)
         # Seen voxels are pale and guessed ones dark: the layer is not one flat colour.
         assert len(np.unique(colours, axis=0)) > 3
-        pale, dark = spread_colors(np.array([0.0, 0.25])).astype(int)
+        pale, dark = spread_colors(np.array([0.0, SPREAD_FULL_SCALE])).astype(int)
         assert pale.sum() > 600 and dark.sum() < 250  # agreeing samples pale, a guess dark
         assert "unseen side" in app.panel.timings.content and "guess" in app.panel.timings.content
         # A new completion of the segment is drawn with its confidence while the layer is on.

@@ -34,7 +34,7 @@ def probability_colors(p: np.ndarray) -> np.ndarray:
     return (colormaps["YlOrRd"](0.25 + 0.75 * x)[:, :3] * 255).astype(np.uint8)
 
 
-SPREAD_FULL_SCALE = 0.25  # sample spread (std of probabilities) drawn at full colour
+SPREAD_FULL_SCALE = 0.4  # sample spread (model.sample_spread, 0 to 0.5) drawn at full colour
 
 
 def spread_colors(spread: np.ndarray) -> np.ndarray:
