@@ -210,20 +210,19 @@ def cmd_complete(args) -> int:
 
 
 def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.ndarray) -> dict:
-    """Write the mesh of each of a completion's samples (``<stem>_sample_<k>.<fmt>``, at the sample's
-    confidence level, :func:`~shapeviewer.reconstruct.sample_mesh`); returns
+    """Write the fast mesh of each of a completion's samples (``<stem>_sample_<k>.<fmt>``); returns
     the report entry: the files (None for an empty sample) and the viewer's confidence figures
     (:func:`~shapeviewer.pipeline.confidence_figures`): the mean spread on the seen and the unseen
     side, and the share of completed voxels that are a guess."""
     from . import export
     from .pipeline import confidence_figures
-    from .reconstruct import sample_level, sample_mesh
+    from .reconstruct import fast_mesh
 
     assert c.samples is not None
     files: list[str | None] = []
-    for k in range(len(c.samples)):
+    for k, probabilities in enumerate(c.samples):
         try:
-            mesh = sample_mesh(c.samples, k, c.frame)
+            mesh = fast_mesh(probabilities, c.frame)
         except ValueError:  # an empty sample: nothing to mesh
             files.append(None)
             continue
@@ -231,14 +230,7 @@ def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.nd
         path.write_bytes(export.mesh_bytes(mesh, fmt, frame, T_world_cam))
         files.append(path.name)
     sides, guessed = confidence_figures(c.grid_in, c.grid_out, c.spread)
-    levels = [sample_level(k, len(c.samples)) for k in range(len(c.samples))]
-    return {
-        "n": len(c.samples),
-        "meshes": files,
-        "levels": levels,
-        "mean_spread": dict(sides),
-        "guessed_share": guessed,
-    }
+    return {"n": len(c.samples), "meshes": files, "mean_spread": dict(sides), "guessed_share": guessed}
 
 
 def cmd_grasp(args) -> int:

@@ -2,7 +2,6 @@
 
 * :func:`fast_mesh`: marching cubes straight on the 40^3 occupancy probabilities (for obstacles
   and planning scenes).
-* :func:`sample_mesh`: one of the CNN's sample completions, at its own confidence level.
 * :func:`detailed_mesh`: Algorithm 1 of the paper, which merges the dense observed points with the
   up-sampled CNN output and smooths the result (Lempitsky 2010) before marching cubes.
 
@@ -63,32 +62,6 @@ def fast_mesh(probabilities: np.ndarray, frame: GridFrame) -> trimesh.Trimesh:
     if probabilities.shape != (frame.dim,) * 3:
         raise ValueError(f"probabilities have shape {probabilities.shape}, the frame is {frame.dim}^3")
     return grid_mesh(probabilities, frame, OCCUPANCY_LEVEL)
-
-
-def sample_level(k: int, n: int) -> float:
-    """The confidence level sample ``k`` of ``n`` is meshed at: ``(2k + 1) / 2n``, the k-th of ``n``
-    evenly spaced quantiles (1/16, 3/16, ..., 15/16 for 8 samples)."""
-    if not 0 <= k < n:
-        raise ValueError(f"sample {k} out of range 0..{n - 1}")
-    return (2 * k + 1) / (2 * n)
-
-
-def sample_mesh(samples: np.ndarray, k: int, frame: GridFrame) -> trimesh.Trimesh:
-    """Sample completion ``k`` of ``samples`` ((n, 40, 40, 40) occupancy probabilities,
-    :meth:`~shapeviewer.model.Completer.predict_samples`) as a closed mesh in the camera frame
-    (metres): marching cubes at its own confidence level :func:`sample_level`, not at 0.5.
-
-    Each sample is the network's answer for one mirror of the view; read at 0.5 they differ only
-    where the mirrors disagree. Read each at a different level as well, from the most generous
-    guess (everything the network gives 1 chance in 16) to the most conservative (15 in 16), they
-    also span where along its probability the surface could be: the unseen back of a box that may
-    be thinner or deeper than the one guess. Grasps ranked by how they hold on these meshes
-    lifted the true object more often than when ranked on the mirrors' answers at 0.5 (model card).
-
-    Raises:
-        EmptyCompletionError: no voxel of the sample reaches its level.
-    """
-    return grid_mesh(np.asarray(samples[k]), frame, sample_level(k, len(samples)))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -106,8 +106,7 @@ def test_hull_baseline_is_the_convex_hull_of_the_points(can_view):
 
 def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
     """`shapeviewer complete --samples N`: N sample completions in the grids .npz with their spread,
-    and each sample's mesh at its confidence level (sample 0, the plain prediction read at 1/8, holds
-    the fast mesh)."""
+    and each sample's fast mesh (sample 0 is the plain prediction, so its mesh is the fast mesh)."""
     import json
 
     import trimesh
@@ -128,11 +127,8 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
         np.testing.assert_allclose(samples[0], z["probabilities"], atol=1e-3)  # float16 storage
         np.testing.assert_allclose(z["spread"], sample_spread(samples), atol=5e-3)
         assert 0 < e["samples"]["mean_spread"]["unseen"] < 0.5 and e["samples"]["n"] == 4
-        assert e["samples"]["levels"] == [0.125, 0.375, 0.625, 0.875]
         fast = trimesh.load(out / e["mesh"]["fast"])
         first = trimesh.load(out / e["samples"]["meshes"][0])
-        # Sample 0 is the network's own answer read generously (at 1/8): it holds the fast mesh.
-        assert first.volume > fast.volume
-        assert (first.bounds[0] <= fast.bounds[0] + 1e-6).all() and (first.bounds[1] >= fast.bounds[1] - 1e-6).all()
+        np.testing.assert_allclose(first.vertices, fast.vertices)
         for name in e["samples"]["meshes"]:
             assert name is not None and trimesh.load(out / name).is_watertight

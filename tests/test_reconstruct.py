@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from shapeviewer.reconstruct import EmptyCompletionError, fast_mesh, sample_level, sample_mesh
+from shapeviewer.reconstruct import EmptyCompletionError, fast_mesh
 from shapeviewer.voxel import GridFrame
 
 
@@ -32,29 +32,6 @@ def test_a_blob_touching_the_grid_border_still_closes():
 def test_empty_output_is_a_clear_error():
     with pytest.raises(EmptyCompletionError, match="empty"):
         fast_mesh(np.zeros((40, 40, 40), np.float32), GridFrame(np.zeros(3), 0.01))
-
-
-def test_samples_read_at_rising_confidence_levels_shrink_from_generous_to_conservative():
-    """Sample k is meshed where it is at least (2k + 1) / 2n sure: of one soft sphere answered
-    identically under every mirror, the first sample is the widest and the last the narrowest,
-    each closed and around the same centre; a sample that never gets that sure has no mesh."""
-    centre = np.array([0.0, 0.0, 0.8])
-    frame = GridFrame(centre, 0.004)
-    idx = np.indices((40, 40, 40)).reshape(3, -1).T
-    r = np.linalg.norm(frame.voxel_centers(idx) - centre, axis=1).reshape(40, 40, 40)
-    soft = (1 / (1 + np.exp((r - 0.04) / 0.004))).astype(np.float32)  # 0.5 at 4 cm
-    samples = np.stack([soft] * 4)
-    assert [sample_level(k, 4) for k in range(4)] == [0.125, 0.375, 0.625, 0.875]
-    meshes = [sample_mesh(samples, k, frame) for k in range(4)]
-    volumes = [m.volume for m in meshes]
-    assert all(m.is_watertight for m in meshes) and volumes == sorted(volumes, reverse=True)
-    assert volumes[0] > fast_mesh(soft, frame).volume > volumes[-1]
-    for m in meshes:
-        np.testing.assert_allclose(m.bounds.mean(0), centre, atol=frame.voxel_size)
-    with pytest.raises(EmptyCompletionError):
-        sample_mesh(np.stack([soft, 0.6 * soft]), 1, frame)  # never 75 % sure
-    with pytest.raises(ValueError, match="out of range"):
-        sample_level(4, 4)
 
 
 def _rendered_view(mesh, T_cam_obj, seed=0):

@@ -2,8 +2,8 @@
 sample completions.
 
 A completion is one guess at the side the camera never saw; the CNN's sample completions
-(:meth:`~shapeviewer.model.Completer.predict_samples`, meshed one by one at their own confidence
-levels with :func:`~shapeviewer.reconstruct.sample_mesh`) are other plausible guesses. :func:`robustness` re-closes
+(:meth:`~shapeviewer.model.Completer.predict_samples`, meshed one by one with
+:func:`~shapeviewer.reconstruct.fast_mesh`) are other plausible guesses. :func:`robustness` re-closes
 every planned grasp on every sample, and :func:`rank_robust` orders the grasps by how well they
 survive: first the share of samples on which the grasp still has force closure, then a lower
 quantile of its epsilon over the samples (after the planner's lift check, when it ran).
@@ -55,7 +55,7 @@ from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, LiftResult, lift_order
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition, mesh_hash
-from shapeviewer.reconstruct import EmptyCompletionError, sample_mesh
+from shapeviewer.reconstruct import fast_mesh
 from shapeviewer.voxel import GridFrame
 
 ROBUST_QUANTILE = 0.25  # the robust score's pessimistic epsilon: the lower quartile over samples
@@ -245,20 +245,11 @@ def rank_robust(scores: Sequence[Robustness], lifts: Sequence[LiftResult | None]
 
 def sample_meshes(samples: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray) -> list[trimesh.Trimesh]:
     """The mesh of each sample completion ((n, 40, 40, 40) occupancy probabilities in the grid
-    ``frame``; :meth:`~shapeviewer.model.Completer.predict_samples`) at its own confidence level
-    (:func:`~shapeviewer.reconstruct.sample_mesh`), moved from the camera frame to the world frame
-    by ``T_world_cam`` (metres). A sample with no voxel at its level (a faint completion read
-    conservatively) has no mesh and is left out.
+    ``frame``; :meth:`~shapeviewer.model.Completer.predict_samples`) as the fast mesh is made
+    (:func:`~shapeviewer.reconstruct.fast_mesh`), moved from the camera frame to the world frame
+    by ``T_world_cam`` (metres).
 
     Raises:
-        EmptyCompletionError: no sample has a mesh.
+        EmptyCompletionError: a sample has no occupied voxel.
     """
-    meshes = []
-    for k in range(len(samples)):
-        try:
-            meshes.append(sample_mesh(samples, k, frame).apply_transform(T_world_cam))
-        except EmptyCompletionError:
-            continue
-    if not meshes:
-        raise EmptyCompletionError("no sample completion reaches its confidence level")
-    return meshes
+    return [fast_mesh(s, frame).apply_transform(T_world_cam) for s in samples]

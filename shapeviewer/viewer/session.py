@@ -47,7 +47,7 @@ from ..pipeline import (
     ensure_samples,
 )
 from ..processes import ProcessPool
-from ..reconstruct import sample_level, sample_mesh
+from ..reconstruct import fast_mesh
 from . import panel as P
 from . import sources
 from .audience import Audience
@@ -548,17 +548,14 @@ class Session:
                 self._ensure_samples(c)
                 assert c.samples is not None  # made just above
                 try:
-                    mesh = self.res.pool.run(sample_mesh, c.samples, k - 1, c.frame)
+                    mesh = self.res.pool.run(fast_mesh, c.samples[k - 1], c.frame)
                 except ValueError as e:  # this sample has no surface: nothing to show
                     self.notify(client, "Empty sample", f"Sample {k} of segment {c.segment_id}: {e}", "yellow")
             self.drawing.draw_sample(self.scene, c.segment_id, mesh)
             self.audience.flush()
         if k:
             set_value(self.panel.layers["confidence"], True)  # the sample is drawn in that layer
-            self.panel.status.content = (
-                f"Sample completion **{k}** of {P.N_SAMPLES} of segment {c.segment_id}: the CNN's answer for "
-                f"mirror {k} of the view, where it is at least {100 * sample_level(k - 1, P.N_SAMPLES):.0f}% sure."
-            )
+            self.panel.status.content = f"Sample completion **{k}** of {P.N_SAMPLES} of segment {c.segment_id}."
         return mesh
 
     def _ensure_samples(self, c: Completion) -> None:
