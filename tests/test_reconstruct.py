@@ -106,3 +106,19 @@ def test_detailed_mesh_keeps_a_thin_plate_whole():
     assert truth.volume < mesh.volume < 1.6 * truth.volume
     assert _share_outside(mesh, truth, 0.001) < 0.06
     assert hausdorff(mesh, truth)["mean_mm"] < 2.5
+
+
+def test_a_surface_through_grid_nodes_keeps_its_vertices_apart(tmp_path):
+    """A surface through grid nodes would stack the vertices of all their edges on one point, and a
+    reader that merges close vertices (trimesh.load) would pinch the closed mesh open."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from shapeviewer.reconstruct import LEVEL_NUDGE, grid_mesh
+
+    r = np.linalg.norm(np.indices((40, 40, 40)) - 20.0, axis=0).astype(np.float32)
+    values = np.float32(5.0) - r + np.float32(0.5 + LEVEL_NUDGE)  # on the level at 6 nodes and more
+    mesh = grid_mesh(values, GridFrame(np.zeros(3), 0.003), 0.5)
+    assert cKDTree(mesh.vertices).query(mesh.vertices, 2)[0][:, 1].min() > 1e-7
+    mesh.export(tmp_path / "sphere.ply")
+    assert trimesh.load(tmp_path / "sphere.ply", force="mesh").is_watertight
