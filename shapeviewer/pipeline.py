@@ -41,7 +41,7 @@ class Completion:
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
         samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`)
-            once computed; their per-voxel standard deviation is the completion's uncertainty.
+            once computed; their per-voxel disagreement (:attr:`spread`) is the completion's uncertainty.
         partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
             once computed.
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
@@ -76,7 +76,7 @@ class Completion:
         return None if self.samples is None else sample_spread(self.samples)
 
 
-# A completed voxel whose samples' probabilities spread more than this is a guess, not seen.
+# A completed voxel whose samples spread more than this (model.sample_spread) is a guess, not seen.
 GUESS_SPREAD = 0.1
 
 
@@ -87,8 +87,9 @@ def confidence_figures(
 
     A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an
     occupied input voxel, else ``unseen`` (sides without voxels are left out); ``spread`` is the
-    per-voxel std of sample completions' probabilities, ``grid_in`` / ``grid_out`` boolean grids
-    of the same shape. A guessed voxel is a completed one with a spread above :data:`GUESS_SPREAD`.
+    per-voxel disagreement of sample completions (:func:`~shapeviewer.model.sample_spread`),
+    ``grid_in`` / ``grid_out`` boolean grids of the same shape. A guessed voxel is a completed one
+    with a spread above :data:`GUESS_SPREAD`.
     """
     from scipy import ndimage
 

@@ -44,15 +44,15 @@ def grid_mesh(values: np.ndarray, frame: GridFrame, level: float) -> trimesh.Tri
     The volume is padded with one layer below ``level`` so the surface closes at the grid border.
     Returns a watertight mesh in the camera frame (metres) with outward normals.
     """
-    if not np.any(values > level + LEVEL_NUDGE):
-        raise EmptyCompletionError("no voxel is above the iso level: the completion is empty")
     iso = level + LEVEL_NUDGE
     values = np.asarray(values, dtype=np.float32)
+    if not np.any(values > iso):
+        raise EmptyCompletionError("no voxel is above the iso level: the completion is empty")
     values = np.where(
         np.abs(values - iso) < OFF_LEVEL, np.where(values >= iso, iso + OFF_LEVEL, iso - OFF_LEVEL), values
     )
     pad_value = min(float(values.min()), level) - 1.0
-    padded = np.pad(values.astype(np.float32), 1, constant_values=pad_value)
+    padded = np.pad(values, 1, constant_values=pad_value)
     verts, faces, _, _ = measure.marching_cubes(padded, level=iso)
     # Padded index i is voxel i - 1, whose centre sits at grid coordinate (i - 1) + 0.5.
     # process=False: marching cubes already shares every vertex; trimesh's merging of vertices

@@ -256,8 +256,8 @@ class PipelineDrawing:
         self.draw_voxels(scene, f"/cnn_output/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, colors)
 
     def draw_confidence(self, scene: LoadedScene, c: Completion, spread: np.ndarray) -> None:
-        """The CNN output's surface voxels coloured by ``spread`` (per voxel of the grid, the std of
-        sample completions' probabilities)."""
+        """The CNN output's surface voxels coloured by ``spread`` (per voxel of the grid, how much
+        sample completions disagree: :func:`~shapeviewer.model.sample_spread`)."""
         idx = surface_voxels(c.grid_out)
         self.draw_voxels(
             scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, spread_colors(spread[tuple(idx.T)])
