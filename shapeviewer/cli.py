@@ -318,6 +318,7 @@ def cmd_train(args) -> int:
         in_channels=args.in_channels,
         init=args.init,
         jaccard_weight=args.jaccard_weight,
+        label=args.label,
     )
     print(json.dumps(train(args.data, args.run, cfg), indent=1))
     return 0
@@ -328,7 +329,8 @@ def cmd_evaluate_grids(args) -> int:
     from .train import evaluate_grids, load_grid_sets
 
     completer = load_completer(args.weights)
-    r = evaluate_grids(completer, load_grid_sets(args.data), max_views=args.views, seed=args.seed)
+    label = completer.meta.get("label", "solid")
+    r = evaluate_grids(completer, load_grid_sets(args.data), max_views=args.views, seed=args.seed, label=label)
     print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
     for s, v in r.items():
         print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")
@@ -488,6 +490,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="add this many times (1 - soft Jaccard) per example to the summed cross-entropy "
         "(0 = the paper's loss; it weighs thin-walled objects as much as large ones)",
+    )
+    s.add_argument(
+        "--label",
+        default="solid",
+        choices=["solid", "fraction"],
+        help="the target: solid = every voxel the object touches (the paper's Y); fraction = how much of "
+        "each voxel the object fills (voxel.solid_fraction), whose 0.5 contour lies on the surface",
     )
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)

@@ -3,7 +3,8 @@
 For each object and orientation on the paper's roll x pitch x yaw grid (11 x 6 x 11 = 726), the
 object alone is rendered by the live pipeline's simulated Kinect (same intrinsics, optional sensor
 noise), 0.6-1.2 m away. X is the visible points voxelized with :func:`voxel.partial_to_grid`;
-Y is every voxel the solid object touches, in the same grid frame. Pairs with fewer than 100
+Y is every voxel the solid object touches, in the same grid frame, and Y_frac the share of each
+voxel the object fills (:func:`voxel.solid_fraction`, the soft label). Pairs with fewer than 100
 occupied X voxels, or with under 80% of X inside Y, are rejected (the paper's rule).
 
 With ``scenes="tabletop"`` the views are :mod:`shapeviewer.sim.tabletop` views instead: the object
@@ -15,7 +16,8 @@ Every example also stores the context channels of :func:`voxel.context_grids` (s
 under the support plane), which a context-aware network reads.
 
 Output: one shard per object, ``<out>/shards/<name>.npz`` with bit-packed X, Y and context and
-per-view metadata, and ``<out>/manifest.json``. Generation is resumable (finished shards are skipped).
+per-view metadata, and ``<out>/manifest.json``. Generation is resumable (finished shards are skipped;
+a shard written before the soft label existed gains it from its stored poses).
 """
 
 from __future__ import annotations
@@ -32,8 +34,18 @@ import numpy as np
 
 from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
 from .fileio import atomic_write
+from .geometry import raycasting_scene
 from .sim import catalogue
-from .voxel import GRID_DIM, context_grids, partial_to_grid, points_to_grid, solid_grid, surface_samples
+from .voxel import (
+    GRID_DIM,
+    GridFrame,
+    context_grids,
+    partial_to_grid,
+    points_to_grid,
+    solid_fraction,
+    solid_grid,
+    surface_samples,
+)
 
 log = logging.getLogger(__name__)
 
@@ -85,13 +97,6 @@ def view_pose(name: str, view: int, seed: int) -> np.ndarray:
     return T
 
 
-def object_mesh(name: str):
-    """A catalogue mesh centred on its bounding-box centre: the object frame that views are posed in."""
-    mesh = catalogue.load_mesh(name)
-    mesh.apply_translation(-mesh.bounding_box.centroid)
-    return mesh
-
-
 def noise_seed(seed: int, view: int) -> list[int]:
     """The sensor-noise seed of one view (shared by training data and evaluation renders)."""
     return [seed, int(view), 7]
@@ -118,7 +123,11 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
     shard = Path(out_dir) / "shards" / (name.replace("/", "__") + ".npz")
     if shard.exists():
         with np.load(shard) as z:
-            return {"name": name, "kept": int(len(z["views"])), "skipped": True}
+            arrays = dict(z)
+        if "yfrac" not in arrays:
+            arrays["yfrac"] = _fractions_of_shard(name, arrays)
+            _write_shard(shard, arrays)
+        return {"name": name, "kept": int(len(arrays["views"])), "skipped": True}
     if config.scenes not in ("sphere", "tabletop"):
         raise ValueError(f"unknown scenes {config.scenes!r} (use 'sphere' or 'tabletop')")
     t0 = time.perf_counter()
@@ -132,30 +141,63 @@ def generate_object(name: str, out_dir: str | Path, config: GenerationConfig = G
     packed = GRID_DIM**3 // 8
     stack = lambda k, shape, dtype: np.array([r[k] for r in rows], dtype).reshape(shape)  # noqa: E731
     n = len(rows)
-    buf = io.BytesIO()
-    np.savez(
-        buf,
-        x=stack("x", (n, packed), np.uint8),
-        y=stack("y", (n, packed), np.uint8),
-        free=stack("free", (n, packed), np.uint8),
-        below=stack("below", (n, packed), np.uint8),
-        views=stack("view", (n,), np.int32),
-        center=stack("center", (n, 3), np.float64),
-        voxel_size=stack("voxel_size", (n,), np.float64),
-        T_cam_obj=stack("T", (n, 3, 4), np.float64),
-        plane=stack("plane", (n, 4), np.float64),
-    )
-    atomic_write(shard, buf.getvalue())
+    arrays = {
+        "x": stack("x", (n, packed), np.uint8),
+        "y": stack("y", (n, packed), np.uint8),
+        "yfrac": stack("yfrac", (n, GRID_DIM**3), np.uint8),
+        "free": stack("free", (n, packed), np.uint8),
+        "below": stack("below", (n, packed), np.uint8),
+        "views": stack("view", (n,), np.int32),
+        "center": stack("center", (n, 3), np.float64),
+        "voxel_size": stack("voxel_size", (n,), np.float64),
+        "T_cam_obj": stack("T", (n, 3, 4), np.float64),
+        "plane": stack("plane", (n, 4), np.float64),
+    }
+    _write_shard(shard, arrays)
     return {"name": name, "kept": n, "rejected": rejected, "seconds": time.perf_counter() - t0, "skipped": False}
 
 
+def _write_shard(path: Path, arrays: dict) -> None:
+    # Compressed: the soft labels are 64 kB per view uncompressed, and almost all 0 or 255.
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write(path, buf.getvalue())
+
+
+def quantize_fraction(fraction: np.ndarray) -> np.ndarray:
+    """A :func:`voxel.solid_fraction` grid as uint8 (255 = full), as shards store it."""
+    return np.round(np.asarray(fraction) * 255).astype(np.uint8)
+
+
+def _fractions_of_shard(name: str, arrays: dict) -> np.ndarray:
+    """The soft labels (n, 64000) uint8 of a shard written before they existed, from its stored
+    poses, grid frames and Y (the object's mesh in the same frame generation posed it in)."""
+    mesh = catalogue.centred_mesh(name)
+    scene = raycasting_scene(mesh)
+    out = np.empty((len(arrays["views"]), GRID_DIM**3), np.uint8)
+    for i in range(len(out)):
+        frame = GridFrame(arrays["center"][i], float(arrays["voxel_size"][i]))
+        T = np.vstack([arrays["T_cam_obj"][i], [0.0, 0.0, 0.0, 1.0]])
+        y = np.unpackbits(arrays["y"][i]).reshape((GRID_DIM,) * 3).astype(bool)
+        out[i] = quantize_fraction(solid_fraction(mesh, frame, y, T, scene=scene)).ravel()
+    return out
+
+
 def _example(
-    view: int, x: np.ndarray, y: np.ndarray, context: np.ndarray, frame, T: np.ndarray, plane: np.ndarray | None
+    view: int,
+    x: np.ndarray,
+    y: np.ndarray,
+    yfrac: np.ndarray,
+    context: np.ndarray,
+    frame,
+    T: np.ndarray,
+    plane: np.ndarray | None,
 ) -> dict:
     return {
         "view": int(view),
         "x": np.packbits(x.ravel()),
         "y": np.packbits(y.ravel()),
+        "yfrac": quantize_fraction(yfrac).ravel(),
         "free": np.packbits(context[0].ravel()),
         "below": np.packbits(context[1].ravel()),
         "center": frame.center,
@@ -168,7 +210,7 @@ def _example(
 def _sphere_examples(name: str, config: GenerationConfig):
     """The paper's views: the object floating alone on the roll-pitch-yaw grid (yields examples or
     the reason a view was rejected)."""
-    mesh = object_mesh(name)
+    mesh = catalogue.centred_mesh(name)
     renderer = RaycastRenderer([mesh])
     intr = Intrinsics.kinect()
     noise = KinectNoise() if config.noise else None
@@ -190,16 +232,18 @@ def _sphere_examples(name: str, config: GenerationConfig):
         if (x_ideal & y).sum() < MIN_X_INSIDE_Y * x_ideal.sum():
             yield "outside"
             continue
-        yield _example(view, x, y, context_grids(measured, frame), frame, T, None)
+        yfrac = solid_fraction(mesh, frame, y, T, scene=renderer.scene)
+        yield _example(view, x, y, yfrac, context_grids(measured, frame), frame, T, None)
 
 
 def _tabletop_examples(name: str, config: GenerationConfig):
     """Tabletop views (:func:`tabletop.render_tabletop_view`), ``config.views`` of them (default 32)."""
     from scipy import ndimage
 
-    from .sim.tabletop import centred_mesh, render_tabletop_view
+    from .sim.tabletop import render_tabletop_view
 
-    mesh = centred_mesh(name)
+    mesh = catalogue.centred_mesh(name)
+    scene = raycasting_scene(mesh)
     surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
     for view in range(config.views or 32):
         v = render_tabletop_view(name, view, seed=config.seed)
@@ -210,13 +254,13 @@ def _tabletop_examples(name: str, config: GenerationConfig):
         if x.sum() < MIN_X_VOXELS:
             yield "few_voxels"
             continue
-        y = solid_grid(mesh, frame, v.T_cam_obj, surface_points=surface)
+        y = solid_grid(mesh, frame, v.T_cam_obj, surface_points=surface, scene=scene)
         if (x & ndimage.binary_dilation(y)).sum() < MIN_X_INSIDE_Y * x.sum():
             yield "outside"
             continue
-        yield _example(
-            view, x, y, context_grids(v.points_cam, frame, support_plane=v.plane_cam), frame, v.T_cam_obj, v.plane_cam
-        )
+        yfrac = solid_fraction(mesh, frame, y, v.T_cam_obj, scene=scene)
+        context = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
+        yield _example(view, x, y, yfrac, context, frame, v.T_cam_obj, v.plane_cam)
 
 
 def _task(args):

@@ -40,14 +40,20 @@ LOGIT_CLIP = float(np.log((1 - PROB_CLIP) / PROB_CLIP))
 PLANE_DROPOUT = 0.2  # share of training examples whose support plane is hidden (callers may not know it)
 
 
+LABELS = ("solid", "fraction")  # Y (every voxel the object touches, the paper's) or voxel.solid_fraction
+_FIELDS = ("x", "y", "yfrac", "free", "below", "objects", "views", "source")
+
+
 @dataclass
 class GridSet:
     """Bit-packed examples: ``x``, ``y``, ``free``, ``below`` are (N, 8000) uint8 (X, Y and the two
-    context channels of :func:`voxel.context_grids`); ``objects``/``views`` identify them;
-    ``source`` is the data folder of each."""
+    context channels of :func:`voxel.context_grids`); ``yfrac`` is (N, 64000) uint8, the soft label
+    (:func:`voxel.solid_fraction`, 255 = full; 0 everywhere for shards written before it existed);
+    ``objects``/``views`` identify them; ``source`` is the data folder of each."""
 
     x: np.ndarray
     y: np.ndarray
+    yfrac: np.ndarray
     free: np.ndarray
     below: np.ndarray
     objects: np.ndarray
@@ -63,8 +69,32 @@ class GridSet:
         unpack = lambda a: np.unpackbits(a[idx], axis=1).reshape(shape).astype(bool)  # noqa: E731
         return unpack(self.x), unpack(self.y), np.stack([unpack(self.free), unpack(self.below)], axis=1)
 
+    def targets(self, idx: np.ndarray, label: str) -> np.ndarray:
+        """The training targets (len(idx), 40, 40, 40) float32: Y (``solid``) or the soft label (``fraction``).
+
+        Raises:
+            ValueError: ``fraction`` asked of examples whose shards predate the soft label.
+        """
+        if label == "solid":
+            return self.grids(idx)[1].astype(np.float32)
+        if label != "fraction":
+            raise ValueError(f"unknown label {label!r} (use one of {LABELS})")
+        frac = self.yfrac[idx]
+        missing = ~frac.any(axis=1)
+        if missing.any():
+            folders = sorted({str(d) for d in self.source[idx][missing]})
+            raise ValueError(
+                f"examples in {', '.join(folders)} have no soft label: run `shapeviewer generate` on those "
+                "folders again (it adds the label to the shards it finds)"
+            )
+        return (frac.astype(np.float32) / 255.0).reshape((len(idx),) + (GRID_DIM,) * 3)
+
+    def truth(self, idx: np.ndarray, label: str) -> np.ndarray:
+        """The bool ground truth the 40^3 Jaccard compares with: Y, or the soft label above 0.5."""
+        return self.grids(idx)[1] if label == "solid" else self.targets(idx, label) > 0.5
+
     def subset(self, idx: np.ndarray) -> GridSet:
-        return GridSet(*(getattr(self, f)[idx] for f in ("x", "y", "free", "below", "objects", "views", "source")))
+        return GridSet(*(getattr(self, f)[idx] for f in _FIELDS))
 
 
 def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
@@ -78,6 +108,7 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
     for data_dir, shard in _shard_files(data_dirs):
         with np.load(shard) as z:
             x, y, views = z["x"], z["y"], z["views"]
+            yfrac = z["yfrac"] if "yfrac" in z else np.zeros((len(x), GRID_DIM**3), np.uint8)
             free = z["free"] if "free" in z else np.zeros_like(x)
             below = z["below"] if "below" in z else np.zeros_like(x)
         name = shard.stem.replace("__", "/")
@@ -89,6 +120,7 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
                     (
                         x[m],
                         y[m],
+                        yfrac[m],
                         free[m],
                         below[m],
                         np.full(m.sum(), name, dtype=object),
@@ -99,12 +131,13 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
     out = {}
     for s in SETS:
         if parts[s]:
-            out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(7)))
+            out[s] = GridSet(*(np.concatenate([p[i] for p in parts[s]]) for i in range(len(_FIELDS))))
         else:
             empty = np.zeros((0, packed), np.uint8)
             out[s] = GridSet(
                 empty,
                 empty.copy(),
+                np.zeros((0, GRID_DIM**3), np.uint8),
                 empty.copy(),
                 empty.copy(),
                 np.zeros(0, dtype=object),
@@ -173,9 +206,15 @@ def jaccard_grids(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def evaluate_grids(
-    net_or_completer, sets: dict[str, GridSet], max_views: int = 500, seed: int = 0, batch: int = 32
+    net_or_completer,
+    sets: dict[str, GridSet],
+    max_views: int = 500,
+    seed: int = 0,
+    batch: int = 32,
+    label: str = "solid",
 ) -> dict:
-    """Mean Jaccard at 40^3 (threshold 0.5) per set, for the network and for the input alone.
+    """Mean Jaccard at 40^3 (threshold 0.5) per set, for the network and for the input alone, against
+    the ground truth of ``label`` (:meth:`GridSet.truth`: the one the network was trained on).
 
     Uses a seeded sample of at most ``max_views`` views per set.
     """
@@ -192,7 +231,8 @@ def evaluate_grids(
         idx = np.sort(rng.choice(len(gs), size=min(max_views, len(gs)), replace=False))
         js, js_in = [], []
         for i in range(0, len(idx), batch):
-            x, y, ctx = gs.grids(idx[i : i + batch])
+            x, _, ctx = gs.grids(idx[i : i + batch])
+            y = gs.truth(idx[i : i + batch], label)
             p = completer.predict(x, context=ctx)
             js.append(jaccard_grids(p > 0.5, y))
             js_in.append(jaccard_grids(x, y))
@@ -219,6 +259,7 @@ class TrainConfig:
     in_channels: int = 3  # unet3d: 1 = occupancy only (the paper), 3 = with the context channels
     init: str | None = None  # weights to start from (a narrower network is widened, see warm_start)
     jaccard_weight: float = 0.0  # weight of soft_jaccard_loss beside the summed cross-entropy (0 = the paper's loss)
+    label: str = "solid"  # the target: "solid" (the paper's Y) or "fraction" (voxel.solid_fraction)
 
 
 def _arch_kwargs(cfg: TrainConfig) -> dict:
@@ -262,6 +303,10 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
     train_set = sets["training_view"]
     if len(train_set) == 0:
         raise ValueError(f"no training views in {data_dir}")
+    if cfg.label not in LABELS:
+        raise ValueError(f"unknown label {cfg.label!r} (use one of {LABELS})")
+    if cfg.label == "fraction":  # fail now, not at the first batch that meets an old shard
+        train_set.targets(np.flatnonzero(~train_set.yfrac.any(axis=1))[:1], cfg.label)
     torch.manual_seed(cfg.seed)
     net = build(cfg.arch, **_arch_kwargs(cfg))
     if cfg.init:
@@ -290,6 +335,7 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
             "lr": cfg.lr,
             "batch_size": cfg.batch_size,
             "jaccard_weight": cfg.jaccard_weight,
+            "label": cfg.label,
             "wall_seconds": wall,
             "examples": {s: len(v) for s, v in sets.items()},
         }
@@ -308,11 +354,12 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
         while step < cfg.steps:
             t0 = time.perf_counter()
             idx = rng.integers(0, len(train_set), cfg.batch_size)  # with replacement, as the paper
-            x, y, ctx = train_set.grids(idx)
+            x, _, ctx = train_set.grids(idx)
+            y = train_set.targets(idx, cfg.label)
             if cfg.augment:
                 x, y, ctx = augment(x, y, ctx, rng)
             xt = network_input(x, ctx, getattr(net, "in_channels", 1)).to(device)
-            yt = torch.from_numpy(y[:, None].astype(np.float32)).to(device)
+            yt = torch.from_numpy(y[:, None]).to(device)
             logits = net(xt)
             loss = bce_loss(logits, yt)
             if cfg.jaccard_weight:
@@ -331,7 +378,7 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
                     n_shards, train_set = len(_shard_files(data_dir)), sets["training_view"]
                     log.info("reloaded data: %s", {s: len(v) for s, v in sets.items()})
                 net.eval()
-                result = evaluate_grids(net, sets, max_views=cfg.eval_views, seed=cfg.seed)
+                result = evaluate_grids(net, sets, max_views=cfg.eval_views, seed=cfg.seed, label=cfg.label)
                 net.train()
                 mean_loss = float(np.mean(losses))
                 losses.clear()

@@ -176,6 +176,57 @@ def solid_grid(
     return grid
 
 
+FRACTION_MARGIN = 0.25  # voxels: the solid is grown by a quarter voxel, so walls thinner than a voxel survive
+
+
+def solid_fraction(
+    mesh: trimesh.Trimesh,
+    frame: GridFrame,
+    solid: np.ndarray,
+    T_cam_mesh: np.ndarray | None = None,
+    scene=None,
+    margin: float = FRACTION_MARGIN,
+) -> np.ndarray:
+    """How much of each voxel a closed mesh fills, from the signed distance at its centre: a soft label.
+
+    :func:`solid_grid` marks every voxel the surface touches, so its 0.5 contour lies up to a voxel
+    outside the object and a shape learnt from it is fat. Here interior voxels are 1 and a voxel the
+    surface passes through holds ``0.5 + margin - d / voxel_size`` (clipped to [0, 1]), ``d`` the
+    signed distance of its centre (negative inside): the share of the voxel a plane at that distance
+    leaves inside the solid grown by ``margin`` voxels. Its 0.5 contour lies ``margin`` voxels
+    outside the surface; the margin keeps walls thinner than a voxel (a plate, a mug's wall) above
+    0.5 where they cross a voxel centre.
+
+    Args:
+        mesh: closed triangle mesh in its own frame (metres).
+        frame: the grid frame.
+        solid: the :func:`solid_grid` of the same mesh and frame (bool, 40^3): the label is 0
+            outside it.
+        T_cam_mesh: 4x4 pose of the mesh in the camera frame (identity when omitted).
+        scene: an optional prebuilt ray-casting scene holding ``mesh`` (mesh frame).
+        margin: growth of the solid, in voxels.
+
+    Returns:
+        float32 (40, 40, 40) in [0, 1].
+    """
+    from scipy import ndimage
+
+    T = np.eye(4) if T_cam_mesh is None else np.asarray(T_cam_mesh, dtype=np.float64)
+    solid = np.asarray(solid, dtype=bool)
+    out = solid.astype(np.float32)
+    # Only voxels with an empty neighbour can hold the surface (the mesh has no inner cavities).
+    boundary = solid & ~ndimage.binary_erosion(solid, np.ones((3, 3, 3), bool), border_value=0)
+    idx = np.argwhere(boundary)
+    if len(idx) == 0:
+        return out
+    if scene is None:
+        scene = raycasting_scene(mesh)
+    centres_mesh = (frame.voxel_centers(idx) - T[:3, 3]) @ T[:3, :3]
+    signed = scene.compute_signed_distance(o3d_tensor(centres_mesh.astype(np.float32))).numpy()
+    out[boundary] = np.clip(0.5 + margin - signed / frame.voxel_size, 0.0, 1.0)
+    return out
+
+
 def surface_samples(mesh: trimesh.Trimesh, spacing: float, max_points: int = 2_000_000, seed: int = 0) -> np.ndarray:
     """Points on the surface of ``mesh`` about ``spacing`` apart (same frame and unit as the mesh).
 

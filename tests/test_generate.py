@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from scipy import ndimage
 
 from shapeviewer.generate import GenerationConfig, generate, generate_object, orientation, view_pose
 from shapeviewer.sim import catalogue
@@ -89,6 +90,26 @@ def test_generation_resumes_without_redoing_work(generated):
     out, cfg, _ = generated
     r = generate_object("ycb/025_mug", out, cfg)
     assert r["skipped"]
+
+
+def test_soft_labels_fill_y_and_an_older_shard_gains_them_on_resume(generated, tmp_path):
+    out, cfg, _ = generated
+    shard = out / "shards" / "ycb__025_mug.npz"
+    with np.load(shard) as z:
+        arrays = dict(z)
+    y = _unpack(arrays["y"])
+    frac = arrays["yfrac"].reshape(y.shape)
+    deep = y & ~ndimage.binary_dilation(~y, np.ones((1, 3, 3, 3)), border_value=1)
+    assert np.all(frac[~y] == 0) and np.all(frac[deep] == 255)
+    # The soft label is thinner than Y (its 0.5 contour lies on the surface, Y's outside it) ...
+    assert 0.5 * y.sum() < (frac > 127).sum() < 0.95 * y.sum()
+    # ... and a shard written before it existed gains the same label from its stored poses.
+    old = tmp_path / "shards" / shard.name
+    old.parent.mkdir()
+    np.savez(old, **{k: v for k, v in arrays.items() if k != "yfrac"})
+    assert generate_object("ycb/025_mug", tmp_path, cfg)["skipped"]
+    with np.load(old) as z:
+        assert np.abs(z["yfrac"].astype(int) - arrays["yfrac"]).max() <= 1
 
 
 def test_split_rule_is_stable():

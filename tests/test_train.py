@@ -55,6 +55,25 @@ def test_a_few_training_steps_lower_the_loss_and_checkpoints_round_trip(tiny_dat
     assert set(r) >= {"holdout_model"}
 
 
+def test_training_on_the_soft_label_and_a_clear_error_for_shards_without_it(tiny_data, tmp_path):
+    run = tmp_path / "run"
+    cfg = TrainConfig(steps=4, batch_size=4, lr=1e-3, eval_every=4, eval_views=8, label="fraction")
+    r = train(tiny_data, run, cfg, progress=False)
+    assert load_completer(run / "best_loss.pt").meta["label"] == "fraction"
+    assert 0 <= r["holdout_model"]["jaccard"] <= 1
+    sets = load_grid_sets(tiny_data)
+    t = sets["training_view"].targets(np.arange(4), "fraction")
+    assert t.dtype == np.float32 and 0 < t.mean() < sets["training_view"].targets(np.arange(4), "solid").mean()
+    # Shards from before the soft label: training on it stops at once and says what to run.
+    old = tmp_path / "old"
+    (old / "shards").mkdir(parents=True)
+    for shard in (tiny_data / "shards").glob("*.npz"):
+        with np.load(shard) as z:
+            np.savez(old / "shards" / shard.name, **{k: v for k, v in z.items() if k != "yfrac"})
+    with pytest.raises(ValueError, match="no soft label.*shapeviewer generate"):
+        train(old, tmp_path / "run2", cfg, progress=False)
+
+
 def test_augmentation_keeps_pairs_and_context_aligned():
     rng = np.random.default_rng(0)
     x = rng.random((64, 40, 40, 40)) < 0.1

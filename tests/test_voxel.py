@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.voxel import GridFrame, partial_to_grid, points_to_grid, solid_grid, surface_samples
+from shapeviewer.reconstruct import grid_mesh
+from shapeviewer.voxel import (
+    GridFrame,
+    partial_to_grid,
+    points_to_grid,
+    solid_fraction,
+    solid_grid,
+    surface_samples,
+)
 
 
 def _cloud(seed=0):
@@ -78,6 +86,30 @@ def test_solid_grid_marks_interior_and_every_surface_voxel_of_a_thin_shell():
     # Solid volume is between the true volume and the volume plus one voxel layer of surface.
     vox_volume = y.sum() * frame.voxel_size**3
     assert cup.volume < vox_volume < cup.volume + cup.area * frame.voxel_size * 1.5
+
+
+def test_the_soft_label_puts_its_half_contour_on_the_surface_and_keeps_thin_walls():
+    frame = GridFrame(np.array([0, 0, 1.0]), 0.1 / 32)
+    T = np.eye(4)
+    T[:3, 3] = [0.001, -0.0013, 1.0007]  # off the voxel lattice
+    box = trimesh.creation.box([0.1, 0.06, 0.04])
+    hard = solid_grid(box, frame, T)
+    soft = solid_fraction(box, frame, hard, T)
+    assert soft.dtype == np.float32 and soft.min() >= 0 and soft.max() <= 1
+    assert np.all(soft[~hard] == 0) and np.all(soft[hard] > 0)
+    # The 0.5 contour of Y lies outside the box (up to a voxel); the soft label's a quarter voxel out.
+    v_hard = grid_mesh(hard.astype(np.float32), frame, 0.5).volume
+    v_soft = grid_mesh(soft, frame, 0.5).volume
+    grown = np.prod(np.array(box.extents) + 0.5 * frame.voxel_size)
+    assert v_hard > 1.1 * box.volume
+    assert abs(v_soft - grown) < 0.03 * grown
+    # A plate a third of a voxel thick stays above 0.5 across its whole extent.
+    plate = trimesh.creation.box([0.08, 0.08, frame.voxel_size / 3])
+    T[:3, 3] = [0.0, 0.0, 1.0 + 0.5 * frame.voxel_size]  # through a layer of voxel centres
+    soft = solid_fraction(plate, frame, solid_grid(plate, frame, T), T)
+    columns = (soft > 0.5).any(axis=2)
+    inner = frame.to_index(np.array([[-0.035, -0.035, 1.0], [0.035, 0.035, 1.0]]))
+    assert columns[inner[0, 0] : inner[1, 0], inner[0, 1] : inner[1, 1]].all()
 
 
 def test_points_outside_the_grid_are_dropped():

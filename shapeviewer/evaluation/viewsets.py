@@ -136,10 +136,10 @@ def render_view(name: str, view: int, view_set: str, seed: int = 0) -> EvalView:
             raise ValueError(f"tabletop view {view} of {name}: the object was hidden or not segmented")
         return EvalView(v.points_cam, v.truth_cam(), v.plane_cam, v.sensor)
     from ..camera import Intrinsics, KinectNoise, RaycastRenderer
-    from ..generate import noise_seed, object_mesh, view_pose
+    from ..generate import noise_seed, view_pose
     from ..generate import render_view as render_object
 
-    mesh = object_mesh(name)
+    mesh = catalogue.centred_mesh(name)
     T = view_pose(name, view, seed)
     _, points = render_object(RaycastRenderer([mesh]), T, Intrinsics.kinect(), KinectNoise(), noise_seed(seed, view))
     return EvalView(points, mesh.copy().apply_transform(T))

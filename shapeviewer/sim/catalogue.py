@@ -241,6 +241,15 @@ def _cache_path(name: str) -> Path:
     return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (stem + ".npz")
 
 
+@lru_cache(maxsize=64)
+def centred_mesh(name: str) -> trimesh.Trimesh:
+    """The catalogue mesh of ``name`` centred on its bounding-box centre: the object frame that views
+    are posed in (training data, test views, tabletop scenes). Shared and cached: copy to edit."""
+    mesh = load_mesh(name)
+    mesh.apply_translation(-mesh.bounding_box.centroid)
+    return mesh
+
+
 def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
     """The watertight mesh of a catalogue object (object frame, metres), from the cache if present."""
     name = name_or_entry.name if isinstance(name_or_entry, ObjectEntry) else name_or_entry

@@ -9,7 +9,7 @@ frame, not a perfect mask. Training data (``shapeviewer generate --scenes tablet
 ``tabletop`` evaluation set use the same views.
 
 Frames: the world frame has z up with the table top at z = 0 (metres); the target object's frame
-is its catalogue mesh centred on its bounding-box centre (as :func:`generate.object_mesh`);
+is its catalogue mesh centred on its bounding-box centre (:func:`catalogue.centred_mesh`);
 everything returned is in the camera optical frame (x right, y down, z forward, metres).
 Every random choice comes from ``(seed, object, view)``.
 """
@@ -82,20 +82,12 @@ class TabletopView:
 def stable_poses(name: str) -> tuple[np.ndarray, np.ndarray]:
     """``(transforms (K, 4, 4), probabilities (K,))``: how the centred mesh of ``name`` rests on a
     plane z = 0 (quasi-static drop probabilities of its convex hull's faces), rarer ones dropped."""
-    mesh = centred_mesh(name)
+    mesh = catalogue.centred_mesh(name)
     T, p = trimesh.poses.compute_stable_poses(mesh.convex_hull, center_mass=mesh.center_mass, n_samples=1)
     keep = p >= MIN_POSE_PROBABILITY
     if not keep.any():
         keep = p >= p.max()
     return np.asarray(T)[keep], np.asarray(p)[keep] / p[keep].sum()
-
-
-@lru_cache(maxsize=64)
-def centred_mesh(name: str) -> trimesh.Trimesh:
-    """The catalogue mesh of ``name`` centred on its bounding-box centre (read-only: copy to edit)."""
-    mesh = catalogue.load_mesh(name)
-    mesh.apply_translation(-mesh.bounding_box.centroid)
-    return mesh
 
 
 def _resting_pose(name: str, rng: np.random.Generator, xy: np.ndarray, stable: bool = True) -> np.ndarray:
@@ -110,7 +102,7 @@ def _resting_pose(name: str, rng: np.random.Generator, xy: np.ndarray, stable: b
     Rz = np.eye(4)
     Rz[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
     out = Rz @ pose
-    v = transform_points(out, centred_mesh(name).vertices)
+    v = transform_points(out, catalogue.centred_mesh(name).vertices)
     out[:3, 3] += [
         xy[0] - (v[:, 0].min() + v[:, 0].max()) / 2,
         xy[1] - (v[:, 1].min() + v[:, 1].max()) / 2,
@@ -121,7 +113,7 @@ def _resting_pose(name: str, rng: np.random.Generator, xy: np.ndarray, stable: b
 
 def _footprint_radius(name: str, T_world_obj: np.ndarray) -> float:
     """Radius (m) of the circle around the x-y bounding-box centre that holds the posed mesh."""
-    v = transform_points(T_world_obj, centred_mesh(name).vertices)[:, :2]
+    v = transform_points(T_world_obj, catalogue.centred_mesh(name).vertices)[:, :2]
     return float(np.linalg.norm(v - (v.min(0) + v.max(0)) / 2, axis=1).max())
 
 
@@ -176,7 +168,7 @@ def render_tabletop_view(
                     poses.append(T)
                     radii.append(r)
                     break
-        meshes_world = [centred_mesh(n).copy().apply_transform(T) for n, T in zip(names, poses)]
+        meshes_world = [catalogue.centred_mesh(n).copy().apply_transform(T) for n, T in zip(names, poses)]
         centre = (meshes_world[0].bounds[0] + meshes_world[0].bounds[1]) / 2
         distance = rng.uniform(*DISTANCE)
         eye = centre + distance * np.array(
@@ -217,7 +209,7 @@ def render_tabletop_view(
             best.points_cam,
             seg.plane_cam,
             T_cam_obj,
-            centred_mesh(name),
+            catalogue.centred_mesh(name),
             names[1:],
             best_hits / len(best.indices),
             capture,
