@@ -9,7 +9,11 @@ Variants (each a weights file, with or without the context):
   * ``Hull``: the convex hull of the segment's points.
 
     python benchmarks/ablation.py --weights old=static_assets/weights/unet3d.pt new=runs/ctx3/best_holdout_model.pt \
-        [--views-per-set 30] [--seed 0] [--mode fast|detailed|both] [--csv out.csv]
+        [--views-per-set 30] [--seed 0] [--mode fast|detailed|both] [--levels 0.5 0.6] [--csv out.csv]
+
+``--levels`` meshes each answer at several iso levels (variant names gain ``@level``): the scan
+that chooses ``reconstruct.MESH_LEVEL`` for a model. ``--upsample vote linear`` compares the ways
+the detailed mesh up-samples the CNN output (``reconstruct.detailed_mesh``; names gain ``+linear``).
 
 Prints mean J80 / distance per variant, per view set and per shape kind, and how often each beats Hull.
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import math
 from collections import defaultdict
 
@@ -27,7 +32,7 @@ from shapeviewer.baselines import hull_mesh
 from shapeviewer.evaluation.viewsets import render_view, sample_views
 from shapeviewer.metrics import hausdorff, sampled_jaccard
 from shapeviewer.model import load_completer
-from shapeviewer.reconstruct import detailed_mesh, fast_mesh
+from shapeviewer.reconstruct import MESH_LEVEL, detailed_mesh, fast_mesh
 from shapeviewer.sim import catalogue
 from shapeviewer.voxel import context_grids, partial_to_grid
 
@@ -43,6 +48,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mode", default="both", choices=["fast", "detailed", "both"])
     ap.add_argument("--no-ablation", action="store_true", help="only the full variant of each weights file")
+    ap.add_argument("--levels", nargs="+", type=float, default=[MESH_LEVEL], help="iso levels to mesh at")
+    ap.add_argument("--upsample", nargs="+", default=["vote"], choices=["vote", "linear"])
     ap.add_argument("--csv", default=None)
     args = ap.parse_args()
     completers = {label: load_completer(path) for label, path in (w.split("=", 1) for w in args.weights)}
@@ -68,17 +75,24 @@ def main() -> None:
             for vname, context, plane in variants:
                 p = c.predict(grid, context=context)
                 mean = c.predict_samples(grid, context=context).mean(axis=0) if context is not None else p
-                for mode in modes:
+                runs = [("fast", "vote")] if "fast" in modes else []
+                runs += [("detailed", u) for u in args.upsample] if "detailed" in modes else []
+                for (mode, upsample), level in itertools.product(runs, args.levels):
                     try:
                         mesh = (
-                            fast_mesh(p, frame)
+                            fast_mesh(p, frame, level=level)
                             if mode == "fast"
-                            else detailed_mesh(mean, frame, v.points_cam, support_plane=plane)
+                            else detailed_mesh(
+                                mean, frame, v.points_cam, support_plane=plane, level=level, upsample=upsample
+                            )
                         )
                         j, d = score(mesh, v.truth_cam)
                     except ValueError:
                         j, d = 0.0, math.nan
-                    rows.append({**base, "variant": f"{vname}/{mode}", "j80": j, "distance_mm": d})
+                    variant = f"{vname}/{mode}"
+                    variant += f"+{upsample}" if len(args.upsample) > 1 and mode == "detailed" else ""
+                    variant += f"@{level:g}" if len(args.levels) > 1 else ""
+                    rows.append({**base, "variant": variant, "j80": j, "distance_mm": d})
         print(f"{i + 1}/{len(views)} {name} {view_set} {kind}", flush=True)
     report(rows)
     if args.csv:

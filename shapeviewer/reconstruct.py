@@ -63,12 +63,13 @@ def grid_mesh(values: np.ndarray, frame: GridFrame, level: float) -> trimesh.Tri
     return mesh
 
 
-def fast_mesh(probabilities: np.ndarray, frame: GridFrame) -> trimesh.Trimesh:
-    """The paper's fast mesh: marching cubes of the CNN output, at p = :data:`MESH_LEVEL`.
+def fast_mesh(probabilities: np.ndarray, frame: GridFrame, *, level: float = MESH_LEVEL) -> trimesh.Trimesh:
+    """The paper's fast mesh: marching cubes of the CNN output, at p = ``level``.
 
     Args:
         probabilities: (40, 40, 40) float occupancy probabilities indexed [x, y, z].
         frame: the grid frame of the CNN input (maps grid coordinates to camera metres).
+        level: the iso level (:data:`MESH_LEVEL`, chosen for the shipped model).
 
     Returns:
         A watertight triangle mesh in the camera optical frame, metres.
@@ -76,7 +77,7 @@ def fast_mesh(probabilities: np.ndarray, frame: GridFrame) -> trimesh.Trimesh:
     probabilities = np.asarray(probabilities)
     if probabilities.shape != (frame.dim,) * 3:
         raise ValueError(f"probabilities have shape {probabilities.shape}, the frame is {frame.dim}^3")
-    return grid_mesh(probabilities, frame, MESH_LEVEL)
+    return grid_mesh(probabilities, frame, level)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -151,6 +152,29 @@ def upsample_occupancy(occupied: np.ndarray, r: int) -> np.ndarray:
         for (i, j, k), s in corners.items():
             vote += s / (abs(t[a] - i) + abs(t[b] - j) + abs(t[c] - k))
         fine[:, a, :, b, :, c] = vote >= 0
+    return fine.reshape(m[0] * r, m[1] * r, m[2] * r)
+
+
+def upsample_probabilities(values: np.ndarray, r: int) -> np.ndarray:
+    """Up-sample a float grid by ``r`` by trilinear interpolation, at the points of :func:`upsample_occupancy`.
+
+    Thresholded at a level, this is the surface marching cubes takes through the same values: it
+    keeps where between two voxel centres the network's probability crosses the level, which the
+    corner vote on thresholded voxels cannot (its surfaces always pass half way).
+
+    Returns float32 of shape ``(n - 1) * r`` per axis, fine point ``f`` at coarse voxel-centre
+    coordinate ``f / r + 0.5 / r``.
+    """
+    v = np.asarray(values, dtype=np.float32)
+    m = tuple(n - 1 for n in v.shape)
+    t = ((np.arange(r) + 0.5) / r).astype(np.float32)
+    fine = np.empty((m[0], r, m[1], r, m[2], r), dtype=np.float32)
+    for a, b, c in np.ndindex(r, r, r):
+        acc = np.zeros(m, np.float32)
+        for i, j, k in np.ndindex(2, 2, 2):
+            w = (t[a] if i else 1 - t[a]) * (t[b] if j else 1 - t[b]) * (t[c] if k else 1 - t[c])
+            acc += w * v[i : i + m[0], j : j + m[1], k : k + m[2]]
+        fine[:, a, :, b, :, c] = acc
     return fine.reshape(m[0] * r, m[1] * r, m[2] * r)
 
 
@@ -287,6 +311,8 @@ def detailed_mesh(
     timings: dict | None = None,
     smooth_iterations: int = SMOOTH_ITERATIONS,
     support_plane: np.ndarray | None = None,
+    level: float = MESH_LEVEL,
+    upsample: str = "linear",
 ) -> trimesh.Trimesh:
     """Algorithm 1: merge the dense observed points with the up-sampled CNN output, smooth, mesh.
 
@@ -303,6 +329,11 @@ def detailed_mesh(
         support_plane: ``(a, b, c, d)`` of the table in the camera frame (normal towards the
             camera), or None; merged voxels wholly under it are emptied, so the mesh stops at the
             table and stays closed.
+        level: the CNN's voxels above this probability are the occupancy Algorithm 1 up-samples.
+        upsample: ``linear`` (the probabilities interpolated, then thresholded at ``level``: the
+            surface lies where the network's answer crosses the level, as in the fast mesh) or
+            ``vote`` (the paper's corner vote on the voxels above ``level``, :func:`upsample_occupancy`,
+            whose surfaces pass half way between voxel centres).
 
     Returns:
         A closed mesh in the camera optical frame, metres.
@@ -317,9 +348,9 @@ def detailed_mesh(
     t0 = time.perf_counter()
     obs = np.asarray(observed_points_cam, dtype=np.float64).reshape(-1, 3)
     obs = obs[np.isfinite(obs).all(axis=1)]
-    occ = np.asarray(probabilities) > MESH_LEVEL
+    occ = np.asarray(probabilities) > level
     if not occ.any():
-        raise EmptyCompletionError(f"no voxel is above {MESH_LEVEL}: the completion is empty")
+        raise EmptyCompletionError(f"no voxel is above {level}: the completion is empty")
     cnn_pts = frame.voxel_centers(np.argwhere(occ))
     obs_nn = mean_nn_distance(obs)
     r = upsample_ratio(obs_nn, mean_nn_distance(cnn_pts)) if len(cnn_pts) > 1 else 1
@@ -329,7 +360,13 @@ def detailed_mesh(
     # Only the cubes around the occupied region matter: crop with one voxel of margin.
     lo = np.maximum(np.argwhere(occ).min(0) - 1, 0)
     hi = np.minimum(np.argwhere(occ).max(0) + 2, frame.dim)
-    fine = upsample_occupancy(occ[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]], r)
+    crop = (slice(lo[0], hi[0]), slice(lo[1], hi[1]), slice(lo[2], hi[2]))
+    if upsample == "vote":
+        fine = upsample_occupancy(occ[crop], r)
+    elif upsample == "linear":
+        fine = upsample_probabilities(np.asarray(probabilities)[crop], r) > level
+    else:
+        raise ValueError(f"unknown upsample {upsample!r} (use 'vote' or 'linear')")
     fine_idx = np.argwhere(fine)
     # Fine point f sits at coarse voxel-centre coordinate lo + f / r + 0.5 / r, i.e. grid coordinate + 0.5.
     up_pts = frame.to_metres(lo + (fine_idx + 0.5) / r + 0.5)
