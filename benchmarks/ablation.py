@@ -12,7 +12,7 @@ Variants (each a weights file, with or without the context):
         [--views-per-set 30] [--seed 0] [--mode fast|detailed|both] [--levels 0.5 0.6] [--csv out.csv]
 
 ``--levels`` meshes each answer at several iso levels (variant names gain ``@level``): the scan
-that chooses ``reconstruct.MESH_LEVEL`` for a model. ``--upsample vote linear`` compares the ways
+that chooses a model's ``mesh_level`` (``Completer.mesh_level``). ``--upsample vote linear`` compares the ways
 the detailed mesh up-samples the CNN output (``reconstruct.detailed_mesh``; names gain ``+linear``).
 
 Prints mean J80 / distance per variant, per view set and per shape kind, and how often each beats Hull.
@@ -32,7 +32,7 @@ from shapeviewer.baselines import hull_mesh
 from shapeviewer.evaluation.viewsets import render_view, sample_views
 from shapeviewer.metrics import hausdorff, sampled_jaccard
 from shapeviewer.model import load_completer
-from shapeviewer.reconstruct import MESH_LEVEL, detailed_mesh, fast_mesh
+from shapeviewer.reconstruct import detailed_mesh, fast_mesh
 from shapeviewer.sim import catalogue
 from shapeviewer.voxel import context_grids, partial_to_grid
 
@@ -48,7 +48,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mode", default="both", choices=["fast", "detailed", "both"])
     ap.add_argument("--no-ablation", action="store_true", help="only the full variant of each weights file")
-    ap.add_argument("--levels", nargs="+", type=float, default=[MESH_LEVEL], help="iso levels to mesh at")
+    ap.add_argument(
+        "--levels", nargs="+", type=float, default=None, help="iso levels to mesh at (default: each model's own)"
+    )
     ap.add_argument("--upsample", nargs="+", default=["vote"], choices=["vote", "linear"])
     ap.add_argument("--csv", default=None)
     args = ap.parse_args()
@@ -77,7 +79,8 @@ def main() -> None:
                 mean = c.predict_samples(grid, context=context).mean(axis=0) if context is not None else p
                 runs = [("fast", "vote")] if "fast" in modes else []
                 runs += [("detailed", u) for u in args.upsample] if "detailed" in modes else []
-                for (mode, upsample), level in itertools.product(runs, args.levels):
+                levels = args.levels or [c.mesh_level]
+                for (mode, upsample), level in itertools.product(runs, levels):
                     try:
                         mesh = (
                             fast_mesh(p, frame, level=level)
@@ -91,7 +94,7 @@ def main() -> None:
                         j, d = 0.0, math.nan
                     variant = f"{vname}/{mode}"
                     variant += f"+{upsample}" if len(args.upsample) > 1 and mode == "detailed" else ""
-                    variant += f"@{level:g}" if len(args.levels) > 1 else ""
+                    variant += f"@{level:g}" if len(levels) > 1 else ""
                     rows.append({**base, "variant": variant, "j80": j, "distance_mm": d})
         print(f"{i + 1}/{len(views)} {name} {view_set} {kind}", flush=True)
     report(rows)

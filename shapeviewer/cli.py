@@ -222,7 +222,7 @@ def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.nd
     files: list[str | None] = []
     for k, probabilities in enumerate(c.samples):
         try:
-            mesh = fast_mesh(probabilities, c.frame)
+            mesh = fast_mesh(probabilities, c.frame, level=c.mesh_level)
         except ValueError:  # an empty sample: nothing to mesh
             files.append(None)
             continue

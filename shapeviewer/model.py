@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from .fileio import atomic_write
+from .reconstruct import MESH_LEVEL
 from .voxel import GRID_DIM
 
 log = logging.getLogger(__name__)
@@ -168,6 +169,11 @@ def default_device() -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
+# Where a network's answers are meshed, by the label it was trained on (``train --label``): Y puts
+# the 0.5 contour outside the object (reconstruct.MESH_LEVEL), the soft label on it.
+LABEL_MESH_LEVELS = {"solid": MESH_LEVEL, "fraction": 0.5}
+
+
 @dataclass
 class Completer:
     """A loaded network that completes 40^3 grids.
@@ -187,6 +193,13 @@ class Completer:
     source: str = ""
     device: torch.device = field(default_factory=default_device)
     batch_size: int = 32
+
+    @property
+    def mesh_level(self) -> float:
+        """The probability this network's answers are meshed at: the weights' ``meta["mesh_level"]``
+        (chosen by a level scan, see the model card), else the level of the label it was trained on
+        (:data:`LABEL_MESH_LEVELS`)."""
+        return float(self.meta.get("mesh_level", LABEL_MESH_LEVELS[self.meta.get("label", "solid")]))
 
     @property
     def in_channels(self) -> int:

@@ -15,7 +15,7 @@ import numpy as np
 import trimesh
 
 from .model import SYMMETRIES, Completer, sample_spread
-from .reconstruct import detailed_mesh, fast_mesh
+from .reconstruct import MESH_LEVEL, detailed_mesh, fast_mesh
 from .voxel import GridFrame, context_grids, partial_to_grid
 
 MIN_SEGMENT_POINTS = 50
@@ -47,6 +47,8 @@ class Completion:
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
             ``detailed_steps`` is the dict :func:`~shapeviewer.reconstruct.detailed_mesh` fills).
         error: why a mesh is missing, if it is.
+        mesh_level: the probability its meshes are taken at (the network's
+            :attr:`~shapeviewer.model.Completer.mesh_level`).
     """
 
     segment_id: int
@@ -63,6 +65,7 @@ class Completion:
     samples: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     error: str | None = None
+    mesh_level: float = MESH_LEVEL
 
     @property
     def grid_out(self) -> np.ndarray:
@@ -125,7 +128,7 @@ def completion_detailed_mesh(
     p = ensure_samples(c, completer).mean(axis=0)
     if timings is not None:
         timings["samples"] = time.perf_counter() - t0
-    return detailed_mesh(p, c.frame, points_cam, timings=timings, support_plane=c.support_plane)
+    return detailed_mesh(p, c.frame, points_cam, timings=timings, support_plane=c.support_plane, level=c.mesh_level)
 
 
 def check_segment(points_cam: np.ndarray) -> np.ndarray:
@@ -176,11 +179,12 @@ def complete_points(
     for sid, g, fr, ctx, p in zip(ids, grids, frames, contexts, probs):
         t3 = time.perf_counter()
         try:
-            mesh, err = fast_mesh(p, fr), None
+            mesh, err = fast_mesh(p, fr, level=completer.mesh_level), None
         except ValueError as e:
             mesh, err = None, str(e)
         timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
-        out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err))
+        level = completer.mesh_level
+        out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err, mesh_level=level))
     return out
 
 

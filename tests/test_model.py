@@ -98,3 +98,28 @@ def test_sample_spread_counts_disagreement_about_occupancy_not_about_probability
     split, agree, same, opposite = sample_spread(samples)
     assert split > agree and same == 0.0 and opposite == pytest.approx(0.5)
     assert sample_spread(samples[:, None]).shape == (1, 4)
+
+
+def test_a_network_is_meshed_at_the_level_of_the_label_it_learnt(tmp_path):
+    from shapeviewer.pipeline import complete_points
+    from shapeviewer.reconstruct import MESH_LEVEL
+
+    shipped = load_completer()
+    assert shipped.mesh_level == shipped.meta.get("mesh_level", MESH_LEVEL)
+    # The same network, saved as if trained on the soft label (whose 0.5 contour is the surface).
+    blob = torch.load(shipped.source, weights_only=True)
+    meta = {k: v for k, v in blob["meta"].items() if k != "mesh_level"}
+    net = build(blob["arch"], **meta.get("arch_kwargs", {}))
+    net.load_state_dict(blob["state_dict"])
+    save_weights(tmp_path / "soft.pt", net, blob["arch"], {**meta, "label": "fraction"})
+    soft = load_completer(tmp_path / "soft.pt")
+    assert soft.mesh_level == 0.5
+    rng = np.random.default_rng(0)
+    u, v = rng.uniform(-1, 1, (2, 4000))
+    points = np.stack([0.04 * u, 0.04 * v, 0.8 - 0.04 * np.sqrt(np.clip(1 - u**2 - v**2, 0, 1))], axis=1)
+    points = points[u**2 + v**2 < 1]
+    (a,) = complete_points([points], shipped)
+    (b,) = complete_points([points], soft)
+    assert b.mesh_level == 0.5 and np.array_equal(a.probabilities, b.probabilities)
+    # Meshed lower, the same answer gives a larger solid: the level reaches the mesh.
+    assert b.fast_mesh.volume > a.fast_mesh.volume

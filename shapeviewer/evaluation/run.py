@@ -134,7 +134,11 @@ def evaluate_view(
             samples = completer.predict_samples(x, context=context)
             t2 = time.perf_counter()
             np.savez_compressed(
-                Path(out_dir) / samples_file(stem), samples=samples, center=frame.center, voxel_size=frame.voxel_size
+                Path(out_dir) / samples_file(stem),
+                samples=samples,
+                center=frame.center,
+                voxel_size=frame.voxel_size,
+                mesh_level=completer.mesh_level,
             )
             cnn.update(
                 probs=probs,
@@ -148,14 +152,16 @@ def evaluate_view(
     def ours_fast():
         c = cnn_output()
         t0 = time.perf_counter()
-        return fast_mesh(c["probs"], c["frame"]), c["seconds"] + time.perf_counter() - t0
+        return fast_mesh(c["probs"], c["frame"], level=completer.mesh_level), c["seconds"] + time.perf_counter() - t0
 
     def ours_detailed():
         # As completion_detailed_mesh: Algorithm 1 on the mean of the 8 mirrored answers.
         c = cnn_output()
         t0 = time.perf_counter()
         return (
-            detailed_mesh(c["samples"].mean(axis=0), c["frame"], points, support_plane=plane),
+            detailed_mesh(
+                c["samples"].mean(axis=0), c["frame"], points, support_plane=plane, level=completer.mesh_level
+            ),
             c["seconds"] + c["seconds_samples"] + time.perf_counter() - t0,
         )
 
@@ -394,11 +400,13 @@ def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, t
     rank by it (0 first), as a grasp file's ``meta["robustness"]`` (:func:`records.grasp_rows`).
     ``grasps`` were planned on ``completion`` (the grasp world, metres), on the table if ``table``."""
     from ..grasp.robust import rank_robust, robustness, sample_meshes
+    from ..reconstruct import MESH_LEVEL
     from ..voxel import GridFrame
 
     with np.load(samples) as saved:
         frame = GridFrame(saved["center"], float(saved["voxel_size"]))
-        meshes = sample_meshes(saved["samples"], frame, T_world_cam)
+        level = float(saved["mesh_level"]) if "mesh_level" in saved else MESH_LEVEL
+        meshes = sample_meshes(saved["samples"], frame, T_world_cam, level=level)
     scores = robustness(grasps, meshes, completion, table=table)
     rank = {i: k for k, i in enumerate(rank_robust(scores, [g.lift for g in grasps]))}
     return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]

@@ -55,7 +55,7 @@ from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, LiftResult, lift_order
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition, mesh_hash
-from shapeviewer.reconstruct import fast_mesh
+from shapeviewer.reconstruct import MESH_LEVEL, fast_mesh
 from shapeviewer.voxel import GridFrame
 
 ROBUST_QUANTILE = 0.25  # the robust score's pessimistic epsilon: the lower quartile over samples
@@ -243,7 +243,9 @@ def rank_robust(scores: Sequence[Robustness], lifts: Sequence[LiftResult | None]
     return sorted(range(len(scores)), key=lambda i: (order[i], -scores[i].fraction, -scores[i].epsilon_low))
 
 
-def sample_meshes(samples: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray) -> list[trimesh.Trimesh]:
+def sample_meshes(
+    samples: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray, *, level: float = MESH_LEVEL
+) -> list[trimesh.Trimesh]:
     """The mesh of each sample completion ((n, 40, 40, 40) occupancy probabilities in the grid
     ``frame``; :meth:`~shapeviewer.model.Completer.predict_samples`) as the fast mesh is made
     (:func:`~shapeviewer.reconstruct.fast_mesh`), moved from the camera frame to the world frame
@@ -252,4 +254,4 @@ def sample_meshes(samples: np.ndarray, frame: GridFrame, T_world_cam: np.ndarray
     Raises:
         EmptyCompletionError: a sample has no occupied voxel.
     """
-    return [fast_mesh(s, frame).apply_transform(T_world_cam) for s in samples]
+    return [fast_mesh(s, frame, level=level).apply_transform(T_world_cam) for s in samples]

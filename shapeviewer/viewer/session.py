@@ -548,7 +548,7 @@ class Session:
                 self._ensure_samples(c)
                 assert c.samples is not None  # made just above
                 try:
-                    mesh = self.res.pool.run(fast_mesh, c.samples[k - 1], c.frame)
+                    mesh = self.res.pool.run(fast_mesh, c.samples[k - 1], c.frame, level=c.mesh_level)
                 except ValueError as e:  # this sample has no surface: nothing to show
                     self.notify(client, "Empty sample", f"Sample {k} of segment {c.segment_id}: {e}", "yellow")
             self.drawing.draw_sample(self.scene, c.segment_id, mesh)
@@ -658,7 +658,7 @@ class Session:
             return None
         self._ensure_samples(c)
         assert c.samples is not None  # made just above
-        return sample_meshes(c.samples, c.frame, scene.T_world_cam)
+        return sample_meshes(c.samples, c.frame, scene.T_world_cam, level=c.mesh_level)
 
     def _make_mesh_for_grasps(
         self, kind: str, segment_id: int, client: viser.ClientHandle | None
