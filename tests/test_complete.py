@@ -100,7 +100,9 @@ def test_the_detailed_mesh_meshes_the_mean_of_the_mirrored_answers_and_keeps_the
     # The 8 mirrored answers are kept (the Confidence layer reuses them) and are not all the same.
     assert c.samples.shape == (8, 40, 40, 40) and np.array_equal(c.samples[0], c.probabilities)
     assert np.abs(c.samples - c.samples[0]).max() > 0.1 and steps["samples"] > 0
-    expected = detailed_mesh(c.samples.mean(axis=0), c.frame, v.points_cam, support_plane=v.plane_cam)
+    expected = detailed_mesh(
+        c.samples.mean(axis=0), c.frame, v.points_cam, support_plane=v.plane_cam, level=completer.mesh_level
+    )
     assert np.array_equal(mesh.vertices, expected.vertices) and mesh.is_watertight
     kept = c.samples
     completion_detailed_mesh(c, v.points_cam, completer)
