@@ -51,7 +51,7 @@ def main() -> None:
     ap.add_argument(
         "--levels", nargs="+", type=float, default=None, help="iso levels to mesh at (default: each model's own)"
     )
-    ap.add_argument("--upsample", nargs="+", default=["linear"], choices=["vote", "linear"])
+    ap.add_argument("--upsample", nargs="+", default=["vote"], choices=["vote", "linear"])
     ap.add_argument("--csv", default=None)
     args = ap.parse_args()
     completers = {label: load_completer(path) for label, path in (w.split("=", 1) for w in args.weights)}
