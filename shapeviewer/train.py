@@ -65,8 +65,7 @@ class GridSet:
 
     def grids(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Unpacked bool grids: X and Y (len(idx), 40, 40, 40) and the context (len(idx), 2, 40, 40, 40)."""
-        shape = (len(idx),) + (GRID_DIM,) * 3
-        unpack = lambda a: np.unpackbits(a[idx], axis=1).reshape(shape).astype(bool)  # noqa: E731
+        unpack = lambda a: _unpack(a, idx)  # noqa: E731
         return unpack(self.x), unpack(self.y), np.stack([unpack(self.free), unpack(self.below)], axis=1)
 
     def targets(self, idx: np.ndarray, label: str) -> np.ndarray:
@@ -76,7 +75,7 @@ class GridSet:
             ValueError: ``fraction`` asked of examples whose shards predate the soft label.
         """
         if label == "solid":
-            return self.grids(idx)[1].astype(np.float32)
+            return _unpack(self.y, idx).astype(np.float32)
         if label != "fraction":
             raise ValueError(f"unknown label {label!r} (use one of {LABELS})")
         frac = self.yfrac[idx]
@@ -91,10 +90,15 @@ class GridSet:
 
     def truth(self, idx: np.ndarray, label: str) -> np.ndarray:
         """The bool ground truth the 40^3 Jaccard compares with: Y, or the soft label above 0.5."""
-        return self.grids(idx)[1] if label == "solid" else self.targets(idx, label) > 0.5
+        return _unpack(self.y, idx) if label == "solid" else self.targets(idx, label) > 0.5
 
     def subset(self, idx: np.ndarray) -> GridSet:
         return GridSet(*(getattr(self, f)[idx] for f in _FIELDS))
+
+
+def _unpack(packed: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Rows ``idx`` of a bit-packed (N, 8000) array as bool grids (len(idx), 40, 40, 40)."""
+    return np.unpackbits(packed[idx], axis=1).reshape((len(idx),) + (GRID_DIM,) * 3).astype(bool)
 
 
 def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
