@@ -41,7 +41,7 @@ def main() -> None:
     times = []
     for i in range(0, len(idx), 8):
         x, _, ctx = gs.grids(idx[i : i + 8])
-        y = gs.truth(idx[i : i + 8], completer.meta.get("label", "solid"))
+        y = gs.truth(idx[i : i + 8], completer.label)
         for b in range(len(x)):
             t0 = time.perf_counter()
             s = completer.predict_samples(x[b], args.samples, context=ctx[b])

@@ -329,8 +329,8 @@ def cmd_evaluate_grids(args) -> int:
     from .train import evaluate_grids, load_grid_sets
 
     completer = load_completer(args.weights)
-    label = completer.meta.get("label", "solid")
-    r = evaluate_grids(completer, load_grid_sets(args.data), max_views=args.views, seed=args.seed, label=label)
+    sets = load_grid_sets(args.data)
+    r = evaluate_grids(completer, sets, max_views=args.views, seed=args.seed, label=completer.label)
     print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
     for s, v in r.items():
         print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")

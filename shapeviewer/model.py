@@ -195,11 +195,16 @@ class Completer:
     batch_size: int = 32
 
     @property
+    def label(self) -> str:
+        """The target it was trained on (``train --label``): ``solid`` (the paper's Y) or ``fraction``."""
+        return str(self.meta.get("label", "solid"))
+
+    @property
     def mesh_level(self) -> float:
         """The probability this network's answers are meshed at: the weights' ``meta["mesh_level"]``
         (chosen by a level scan, see the model card), else the level of the label it was trained on
         (:data:`LABEL_MESH_LEVELS`)."""
-        return float(self.meta.get("mesh_level", LABEL_MESH_LEVELS[self.meta.get("label", "solid")]))
+        return float(self.meta.get("mesh_level", LABEL_MESH_LEVELS[self.label]))
 
     @property
     def in_channels(self) -> int:
