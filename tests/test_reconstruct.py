@@ -42,6 +42,19 @@ def _rendered_view(mesh, T_cam_obj, seed=0):
     return backproject_valid(KinectNoise().apply(depth, seed), intr)
 
 
+def _box_view(extents, angle, axis, position, seed=0):
+    """A box posed in front of the Kinect: ``(box, T_cam_obj, observed points, grid frame)``."""
+    import trimesh
+
+    from shapeviewer.voxel import partial_to_grid
+
+    box = trimesh.creation.box(extents)
+    T = trimesh.transformations.rotation_matrix(angle, axis)
+    T[:3, 3] = position
+    pts = _rendered_view(box, T, seed)
+    return box, T, pts, partial_to_grid(pts)[1]
+
+
 def _share_outside(mesh, truth, distance):
     """Share of ``truth``'s surface more than ``distance`` (m) outside ``mesh``."""
     import trimesh
@@ -56,13 +69,9 @@ def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
 
     from shapeviewer.metrics import hausdorff
     from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import partial_to_grid, solid_grid
+    from shapeviewer.voxel import solid_grid
 
-    box = trimesh.creation.box([0.08, 0.05, 0.06])
-    T = trimesh.transformations.rotation_matrix(0.6, [1, 1, 0])
-    T[:3, 3] = [0.02, -0.01, 0.7]
-    pts = _rendered_view(box, T)
-    _, frame = partial_to_grid(pts)
+    box, T, pts, frame = _box_view([0.08, 0.05, 0.06], 0.6, [1, 1, 0], [0.02, -0.01, 0.7])
     # A perfect CNN: the true solid occupancy in the view's grid.
     probs = solid_grid(box, frame, T).astype(np.float32)
     timings = {}
@@ -88,17 +97,12 @@ def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
 def test_detailed_mesh_follows_the_probabilities_between_voxel_centres():
     # A network trained on the soft label says where between two voxel centres the surface lies;
     # the corner vote on thresholded voxels puts it half way, the linear up-sampling keeps it.
-    import trimesh
 
     from shapeviewer.metrics import hausdorff
     from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import partial_to_grid, solid_fraction, solid_grid
+    from shapeviewer.voxel import solid_fraction, solid_grid
 
-    box = trimesh.creation.box([0.07, 0.05, 0.06])
-    T = trimesh.transformations.rotation_matrix(0.5, [1, 1, 0])
-    T[:3, 3] = [0.01, -0.01, 0.7]
-    pts = _rendered_view(box, T)
-    _, frame = partial_to_grid(pts)
+    box, T, pts, frame = _box_view([0.07, 0.05, 0.06], 0.5, [1, 1, 0], [0.01, -0.01, 0.7])
     probs = solid_fraction(box, frame, solid_grid(box, frame, T), T, margin=0.0)
     truth = box.copy().apply_transform(T)
     linear = detailed_mesh(probs, frame, pts, level=0.5, upsample="linear")
@@ -123,17 +127,12 @@ def test_detailed_mesh_follows_the_probabilities_between_voxel_centres():
 def test_detailed_mesh_keeps_a_thin_plate_whole():
     # A plate 3-4 CNN voxels thick, seen at a slant: the merged grid must not lose its body to
     # rounding or to the half-voxel surface shift.
-    import trimesh
 
     from shapeviewer.metrics import hausdorff
     from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import partial_to_grid, solid_grid
+    from shapeviewer.voxel import solid_grid
 
-    plate = trimesh.creation.box([0.10, 0.07, 0.012])
-    T = trimesh.transformations.rotation_matrix(0.9, [1, 0.3, 0])
-    T[:3, 3] = [0.0, 0.02, 0.8]
-    pts = _rendered_view(plate, T, seed=3)
-    _, frame = partial_to_grid(pts)
+    plate, T, pts, frame = _box_view([0.10, 0.07, 0.012], 0.9, [1, 0.3, 0], [0.0, 0.02, 0.8], seed=3)
     probs = solid_grid(plate, frame, T).astype(np.float32)
     mesh = detailed_mesh(probs, frame, pts)
     truth = plate.copy().apply_transform(T)
