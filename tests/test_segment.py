@@ -10,7 +10,15 @@ import pytest
 
 from shapeviewer.camera import look_at, transform_points
 from shapeviewer.capture import Capture, load_capture
-from shapeviewer.segment import SegmentationError, flying_pixels, isolate, segment_scene, table_frame
+from shapeviewer.segment import (
+    MIN_HEIGHT,
+    SegmentationError,
+    flying_pixels,
+    isolate,
+    segment_scene,
+    table_band,
+    table_frame,
+)
 
 SPACING = 0.005  # m between synthetic surface samples
 
@@ -18,7 +26,7 @@ SPACING = 0.005  # m between synthetic surface samples
 def _box(centre_xy, size) -> np.ndarray:
     """World points (m) on the sides and top of a box standing on z = 0.
 
-    Heights are sampled at 2.5 mm + k * 5 mm, so none lies near the 1.5 cm height cut.
+    Heights are sampled at 2.5 mm + k * 5 mm, so none lies near a height cut of 5, 10 or 15 mm.
     """
     (cx, cy), (sx, sy, sz) = centre_xy, size
     zs = np.arange(SPACING / 2, sz, SPACING)
@@ -41,15 +49,16 @@ def _cylinder(centre_xy, radius: float, height: float) -> np.ndarray:
     return np.stack([centre_xy[0] + radius * np.cos(a), centre_xy[1] + radius * np.sin(a), z], -1).reshape(-1, 3)
 
 
-def _scene(extra: list[np.ndarray] = (), seed: int = 0):
-    """A noisy 1.2 m table with three objects (and ``extra`` world point sets) seen from above.
+def _scene(extra: list[np.ndarray] = (), seed: int = 0, table_noise: float = 0.001):
+    """A 1.2 m table with Gaussian height noise ``table_noise`` (m) and three objects (and ``extra``
+    world point sets) on it, seen from above.
 
     Returns ``(camera-frame points with NaN rows, truth label per row, T_world_cam)``; labels are
     -2 for NaN rows, -1 for the table, k for the k-th object (left to right), 3+ for ``extra``.
     """
     rng = np.random.default_rng(seed)
     gx, gy = np.meshgrid(np.arange(-0.6, 0.6, SPACING), np.arange(-0.6, 0.6, SPACING))
-    table = np.stack([gx.ravel(), gy.ravel(), rng.normal(0, 0.001, gx.size)], -1)
+    table = np.stack([gx.ravel(), gy.ravel(), rng.normal(0, table_noise, gx.size)], -1)
     objects = [
         _box((-0.25, 0.1), (0.08, 0.06, 0.12)),
         _cylinder((0.0, 0.0), 0.04, 0.15),
@@ -72,7 +81,7 @@ def test_synthetic_scene_gives_one_segment_per_object() -> None:
     assert len(seg.segments) == 3
     for k, s in enumerate(seg.segments):  # numbered left to right, and world x grows to the right
         world_z = transform_points(T_true, points[truth == k])[:, 2]
-        expected = np.flatnonzero(truth == k)[world_z >= 0.015]
+        expected = np.flatnonzero(truth == k)[world_z >= MIN_HEIGHT]  # a quiet table: the lowest band
         np.testing.assert_array_equal(np.sort(s.indices), expected)
         np.testing.assert_array_equal(s.points_cam, points[s.indices])
         assert re.fullmatch(rf"segment {k} \({len(expected)} pts, \d+ cm\)", s.label)
@@ -90,6 +99,23 @@ def test_synthetic_scene_gives_one_segment_per_object() -> None:
     assert set(seg.timings) == {"prepare", "plane", "downsample", "cluster", "segments", "total"}
 
 
+def test_the_height_band_follows_the_tables_noise() -> None:
+    """Over a noisier table the band rises (3.5 sigma, within 5..15 mm), so no table point joins a
+    segment, and a quiet table leaves every object its points down to 5 mm."""
+    for sigma, band in ((0.0005, 0.005), (0.002, 0.007), (0.003, 0.0105)):
+        points, truth, T_true = _scene(seed=1, table_noise=sigma)
+        heights = transform_points(T_true, np.nan_to_num(points))[:, 2][truth > -2]
+        assert table_band(heights) == pytest.approx(band, abs=0.0006)
+        seg = segment_scene(points)
+        assert len(seg.segments) == 3
+        in_segments = np.concatenate([s.indices for s in seg.segments])
+        assert (truth[in_segments] >= 0).all()  # not one table point
+        world_z = transform_points(T_true, points[in_segments])[:, 2]
+        assert world_z.min() == pytest.approx(0.0025 + 0.005 * np.ceil((band - 0.0025) / 0.005), abs=1e-6)
+    assert table_band(np.random.default_rng(0).normal(0, 0.008, 1000)) == 0.015  # the highest band
+    assert table_band(np.full(100, 0.01)) == MIN_HEIGHT  # nothing under the plane: no table among the points
+
+
 def test_size_filters_and_height_band() -> None:
     wall = _box((0.0, 0.4), (0.8, 0.02, 0.2))  # longer than max_extent
     crumb = _box((-0.4, -0.3), (0.02, 0.02, 0.03))  # fewer than min_points
@@ -105,7 +131,7 @@ def test_size_filters_and_height_band() -> None:
 
 def test_isolate_cuts_one_object_as_the_segmentation_would() -> None:
     """A mask-like selection of the cylinder (its points, the table ring around its foot, stray
-    depth pixels 30 cm behind it) keeps exactly the cylinder's points above the 1.5 cm band."""
+    depth pixels 30 cm behind it) keeps exactly the cylinder's points above the band (a quiet table: the lowest)."""
     points, labels, T_world_cam = _scene()
     world = transform_points(T_world_cam, np.nan_to_num(points))
     near_foot = (labels == -1) & (np.hypot(world[:, 0], world[:, 1]) < 0.06)
@@ -115,7 +141,7 @@ def test_isolate_cuts_one_object_as_the_segmentation_would() -> None:
     plane_cam = T_world_cam.T @ np.array([0.0, 0.0, 1.0, 0.0])  # the table z = 0, normal up
     kept = isolate(mask, support_plane=plane_cam)
     expected = np.zeros(len(mask), bool)
-    expected[: len(cylinder)] = world[labels == 1][:, 2] >= 0.015
+    expected[: len(cylinder)] = world[labels == 1][:, 2] >= MIN_HEIGHT
     assert np.array_equal(kept, expected)
     # Without a plane nothing is cut by height; the largest cluster (cylinder and ring) still drops
     # the strays and the NaNs.

@@ -1,0 +1,80 @@
+"""How well each way of ranking a view's grasps picks one that lifts the true object, on the grasps
+an evaluation already planned and executed (issue 14: the robust ranking against the planner's).
+
+``shapeviewer evaluate --grasps --robust`` plans each view's grasps on the completion, executes every
+one of them on the true mesh, and re-closes each on the CNN's 8 sample completions
+(:mod:`shapeviewer.grasp.robust`); its grasp files keep each grasp's epsilon on every sample. This
+re-ranks those same grasps offline, so rankings compare on identical grasps and outcomes:
+
+* ``planner``: the planner's order (its lift check on the completion, then epsilon);
+* ``robust q=<q>``: :func:`~shapeviewer.grasp.robust.rank_robust` with the robust epsilon taken at the
+  lower quantile ``q`` of the samples' epsilons (0: the worst sample);
+* ``oracle``: a view counts as a success when any of its grasps lifted the true object (the ceiling
+  of any ranking of these grasps).
+
+    shapeviewer evaluate --out results/table50 --views tabletop --views-per-set 50 --grasps \\
+        --n-grasps 10 --grasp-budget 10 --grasp-methods Ours-detailed --robust
+    python benchmarks/ranking.py results/table50 [more results folders] [--quantiles 0 0.25 0.5]
+
+Prints the best grasp's lift success per view set for each ranking (a view without grasps counts as
+a failure, and a view whose grasping stage failed is left out, as in Table V).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("results", nargs="+", type=Path, help="results folders of shapeviewer evaluate --grasps --robust")
+    ap.add_argument("--method", default="Ours-detailed")
+    ap.add_argument("--quantiles", nargs="+", type=float, default=[0.0, 0.125, 0.25, 0.5])
+    args = ap.parse_args()
+
+    from shapeviewer.grasp.robust import Robustness, rank_robust
+    from shapeviewer.grasp.serialize import grasps_from_json
+
+    success: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for root in args.results:
+        files = sorted((root / "views").glob("*.json"))
+        if not files:
+            raise SystemExit(f"no views in {root}: run shapeviewer evaluate --grasps --robust --out {root} first")
+        for f in files:
+            record = json.loads(f.read_text())
+            entry = next((g for g in record.get("grasps", []) if g["method"] == args.method), None)
+            if entry is None or entry["error"] or not entry["file"]:
+                continue  # as Table V does: a view whose grasping failed is reported apart
+            gs = grasps_from_json((root / entry["file"]).read_text())
+            lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]
+            robust = gs.meta.get("robustness")
+            picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}
+            if robust:
+                for q in args.quantiles:
+                    scores = [
+                        Robustness(r["fraction"], float(np.quantile(r["epsilons"], q)), tuple(r["epsilons"]))
+                        for r in robust
+                    ]
+                    picks[f"robust q={q:g}"] = rank_robust(scores, [g.lift for g in gs.grasps])[0]
+            for name, i in picks.items():
+                ok = float(lifted[i]) if lifted else 0.0
+                for s in (record["view_set"], "all"):
+                    success[name][s].append(ok)
+    sets = sorted({s for by_set in success.values() for s in by_set}, key=lambda s: (s == "all", s))
+    print(f"{'ranking':16s} " + " ".join(f"{s:>24s}" for s in sets))
+    for name, by_set in success.items():
+        print(
+            f"{name:16s} "
+            + " ".join(
+                f"{100 * np.mean(by_set[s]):17.1f}% n={len(by_set[s]):3d}" if by_set[s] else f"{'-':>24s}" for s in sets
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
