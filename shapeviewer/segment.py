@@ -123,6 +123,8 @@ class Segmentation:
         timings: seconds per stage (``prepare``, ``plane``, ``downsample``, ``cluster``,
             ``segments``) and ``total``.
         table_indices: (M,) int64 rows of ``capture.flat_points()`` within ``plane_distance`` of the plane.
+        min_height: the bottom of the height band the segments were cut from (m above the plane;
+            :func:`table_band` unless given); None when there is no plane.
     """
 
     segments: list[Segment]
@@ -130,6 +132,7 @@ class Segmentation:
     T_world_cam: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
     table_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    min_height: float | None = None
 
 
 def segment_scene(
@@ -224,10 +227,13 @@ def segment_scene(
     plane = _support_plane(sample, rng, ransac_iterations, plane_distance, min_plane_fraction, min_plane_extent)
     table = np.zeros(0, dtype=np.int64)
     T_world_cam = np.eye(4)
-    if plane is not None:
+    if plane is None:
+        min_height = None
+    else:
         height = np.einsum("ij,j->i", pts, plane[:3]) + plane[3]
         table = idx[np.abs(height) <= plane_distance]
-        band = (height >= (table_band(height) if min_height is None else min_height)) & (height <= max_height)
+        min_height = table_band(height) if min_height is None else min_height
+        band = (height >= min_height) & (height <= max_height)
         idx, pts = idx[band], pts[band]
         T_world_cam = table_frame(plane)
     lap("plane")
@@ -245,7 +251,7 @@ def segment_scene(
     segments = _make_segments(idx, pts, labels, min_points, max_extent)
     lap("segments")
     timings["total"] = time.perf_counter() - t0
-    return Segmentation(segments, plane, T_world_cam, timings, table)
+    return Segmentation(segments, plane, T_world_cam, timings, table, min_height)
 
 
 def isolate(

@@ -108,6 +108,7 @@ def test_the_height_band_follows_the_tables_noise() -> None:
         assert table_band(heights) == pytest.approx(band, abs=0.0006)
         seg = segment_scene(points)
         assert len(seg.segments) == 3
+        assert seg.min_height == pytest.approx(band, abs=0.0006)  # the band the viewer reports
         in_segments = np.concatenate([s.indices for s in seg.segments])
         assert (truth[in_segments] >= 0).all()  # not one table point
         world_z = transform_points(T_true, points[in_segments])[:, 2]

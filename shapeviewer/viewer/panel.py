@@ -243,11 +243,19 @@ def data_file_options(files: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def source_markdown(
-    source: str, n_points: int, n_valid: int, n_segments: int, seg_seconds: float, frame_note: str
+    source: str,
+    n_points: int,
+    n_valid: int,
+    n_segments: int,
+    seg_seconds: float,
+    frame_note: str,
+    min_height: float | None = None,
 ) -> str:
-    """What was loaded: name, valid/total points, segments, segmentation time, which world frame."""
+    """What was loaded: name, valid/total points, segments (and the table band they were cut above,
+    metres; None: no table), segmentation time, which world frame."""
+    band = "no table found" if min_height is None else f"cut {min_height * 1000:.0f} mm above the table"
     return (
-        f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments  \n"
+        f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments, {band}  \n"
         f"segmentation {seg_seconds * 1000:.0f} ms · {frame_note}"
     )
 

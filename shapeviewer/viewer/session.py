@@ -613,6 +613,7 @@ class Session:
             len(scene.segments),
             scene.seg_seconds,
             f"world: {scene.frame_note}",
+            scene.segmentation.min_height,
         )
         decimated = capture.decimation_note()
         sent = self.drawing.sent_points()
