@@ -269,20 +269,26 @@ class Completer:
 
 
 # The spread counts how much the samples disagree about *whether* a voxel is occupied: each
-# probability is first pushed towards its decision, p^k / (p^k + (1 - p)^k) = sigmoid(k logit p),
-# so answers of 0.45 and 0.55, which decide differently, spread more than answers of 0.05 and 0.35,
-# which agree. The plain std of the probabilities ranks voxels by error less well (model card).
+# probability is first pushed towards its decision at SPREAD_LEVEL,
+# sigmoid(k (logit p - logit level)), so answers of 0.3 and 0.5, which decide differently, spread
+# more than answers of 0.05 and 0.25, which agree. The plain std of the probabilities ranks voxels by
+# error less well (model card). The level sits a little below the soft label's surface (0.5): every
+# voxel the visible surface passes through holds about half object, and a decision at exactly 0.5
+# there flips on sub-voxel differences between samples that agree where the surface is; at 0.4 it
+# asks whether the object reaches into the voxel, which the observed side settles and the unseen
+# side does not.
 SPREAD_SHARPNESS = 4.0
+SPREAD_LEVEL = 0.4
 
 
-def sample_spread(samples: np.ndarray) -> np.ndarray:
+def sample_spread(samples: np.ndarray, *, level: float = SPREAD_LEVEL) -> np.ndarray:
     """Per-voxel uncertainty of sample completions: the std over ``samples`` ((n, ...) occupancy
-    probabilities, e.g. :meth:`Completer.predict_samples`) of their soft decisions
-    ``sigmoid(SPREAD_SHARPNESS * logit p)``; float32, the shape of one sample, 0 (all agree) to
-    0.5 (half say occupied, half empty)."""
+    probabilities, e.g. :meth:`Completer.predict_samples`) of their soft decisions at ``level``,
+    ``sigmoid(SPREAD_SHARPNESS * (logit p - logit level))``; float32, the shape of one sample, 0 (all
+    agree) to 0.5 (half say occupied, half empty)."""
     p = np.asarray(samples, dtype=np.float64)
-    pk, qk = p**SPREAD_SHARPNESS, (1.0 - p) ** SPREAD_SHARPNESS
-    return (pk / (pk + qk)).std(axis=0).astype(np.float32)
+    a, b = (p * (1.0 - level)) ** SPREAD_SHARPNESS, ((1.0 - p) * level) ** SPREAD_SHARPNESS
+    return (a / np.maximum(a + b, 1e-300)).std(axis=0).astype(np.float32)
 
 
 # The image-plane symmetries the network was trained with (train.augment): flip x, flip y and

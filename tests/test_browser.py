@@ -100,7 +100,10 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             for k, g in enumerate(grasps[1:], start=1):
                 sticks = hand_skeleton(hand, [g.joints[n] for n in hand.joint_names]).reshape(-1, 3)
                 for point in transform_points(g.T_world_palm, sticks):
-                    if app.grasps.pick(*ray_through(cam.position, point))[0] == k:
+                    # A point where this hand, not another or a segment in front of it, takes the click.
+                    ray = ray_through(cam.position, point)
+                    hit, t_hand = app.grasps.pick(*ray)
+                    if hit == k and t_hand <= app.pick_hit(*ray)[1]:
                         xy = canvas_point(page, client, point)
                         if xy is not None:
                             target = (k, xy)

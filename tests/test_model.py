@@ -98,15 +98,19 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
 
 
 def test_sample_spread_counts_disagreement_about_occupancy_not_about_probability():
-    """Two samples that decide differently (0.45 and 0.55) are less sure of a voxel than two that
-    both call it empty (0.05 and 0.35), though their probabilities differ less; full agreement is
-    no spread, an even split the most."""
-    from shapeviewer.model import sample_spread
+    """Two samples that decide differently at the spread's level (0.3 and 0.5 about 0.4) are less
+    sure of a voxel than two that both call it empty (0.05 and 0.25), though their probabilities
+    differ as much; full agreement is no spread, an even split the most."""
+    from shapeviewer.model import SPREAD_LEVEL, sample_spread
 
-    samples = np.array([[0.45, 0.05, 0.9, 0.0], [0.55, 0.35, 0.9, 1.0]], dtype=np.float32)
+    assert SPREAD_LEVEL == 0.4
+    samples = np.array([[0.3, 0.05, 0.9, 0.0], [0.5, 0.25, 0.9, 1.0]], dtype=np.float32)
     split, agree, same, opposite = sample_spread(samples)
-    assert split > agree and same == 0.0 and opposite == pytest.approx(0.5)
+    assert split > 2 * agree and same == 0.0 and opposite == pytest.approx(0.5)
     assert sample_spread(samples[:, None]).shape == (1, 4)
+    # At the label's surface (0.5) instead, 0.45 and 0.55 split; 0.3 and 0.5 about 0.4 do not.
+    at_half = sample_spread(np.array([[0.45], [0.55]]), level=0.5)[0]
+    assert at_half > sample_spread(np.array([[0.45], [0.55]]))[0]
 
 
 def test_a_network_is_meshed_at_the_level_of_the_label_it_learnt(tmp_path):
