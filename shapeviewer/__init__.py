@@ -15,6 +15,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "load_capture": ".capture",
     "segment_scene": ".segment",
     "isolate": ".segment",
+    "table_band": ".segment",
     "partial_to_grid": ".voxel",
     "context_grids": ".voxel",
     "GridFrame": ".voxel",
