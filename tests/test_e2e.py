@@ -397,7 +397,17 @@ def test_dataset_tab_shows_a_view_and_exports_it(walk):
     labels = [f"/dataset/label_{k}" for k in KINDS if scene_node(walk.client, f"/dataset/label_{k}") is not None]
     assert len(labels) >= 6, labels
     # (Most, not all: a column's label may sit behind another column's hand or frustum.)
-    wait_until(lambda: len(unlabelled(walk, labels)) <= len(labels) // 2, 30, "the labels drawn")
+    # Software WebGL on a loaded machine can take a while to draw them; a failure names the missing.
+    missing: list[str] = []
+
+    def drawn() -> bool:
+        missing[:] = unlabelled(walk, labels)
+        return len(missing) <= len(labels) // 2
+
+    try:
+        wait_until(drawn, 60, "the labels drawn")
+    except AssertionError as e:
+        raise AssertionError(f"{e}; without text above their anchors: {missing}") from None
 
     stem = view_stem(name, view)
     path = download(page, "Mesh (full resolution)", folder)  # Ours-fast, PLY, camera frame by default
