@@ -56,10 +56,7 @@ def main() -> None:
             picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}
             if robust:
                 for q in args.quantiles:
-                    scores = [
-                        Robustness(r["fraction"], float(np.quantile(r["epsilons"], q)), tuple(r["epsilons"]))
-                        for r in robust
-                    ]
+                    scores = [Robustness.of(r["epsilons"], q) for r in robust]
                     picks[f"robust q={q:g}"] = rank_robust(scores, [g.lift for g in gs.grasps])[0]
             for name, i in picks.items():
                 ok = float(lifted[i]) if lifted else 0.0

@@ -288,7 +288,7 @@ def sample_spread(samples: np.ndarray, *, level: float = SPREAD_LEVEL) -> np.nda
     agree) to 0.5 (half say occupied, half empty)."""
     p = np.asarray(samples, dtype=np.float64)
     a, b = (p * (1.0 - level)) ** SPREAD_SHARPNESS, ((1.0 - p) * level) ** SPREAD_SHARPNESS
-    return (a / np.maximum(a + b, 1e-300)).std(axis=0).astype(np.float32)
+    return (a / (a + b)).std(axis=0).astype(np.float32)
 
 
 # The image-plane symmetries the network was trained with (train.augment): flip x, flip y and

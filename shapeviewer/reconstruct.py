@@ -382,7 +382,6 @@ def detailed_mesh(
     t["upsample"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    rays = obs / np.maximum(np.linalg.norm(obs, axis=1, keepdims=True), 1e-12)
     merged = np.concatenate([obs, up_pts])
     # The paper merges at (40 r)^3, i.e. a leaf of voxel_size / r; their code used 2 x the observed
     # spacing. The larger of the two keeps the up-sampled CNN points (voxel_size / r apart) free of
@@ -399,8 +398,8 @@ def detailed_mesh(
             f"the merged grid would be {tuple(shape)} voxels: the observed cloud is too dense "
             f"for its size (mean spacing {obs_nn * 1000:.2f} mm); downsample it first"
         )
-    idx = np.floor((merged - origin) / leaf).astype(int)
-    obs_idx, cnn_idx = idx[: len(obs)], idx[len(obs) :]
+    cnn_idx = np.floor((up_pts - origin) / leaf).astype(int)
+    rays = obs / np.maximum(np.linalg.norm(obs, axis=1, keepdims=True), 1e-12)
     obs_idx = np.clip(np.floor((obs + observed_inset * leaf * rays - origin) / leaf).astype(int), 0, shape - 1)
     cnn = np.zeros(shape, bool)
     cnn[cnn_idx[:, 0], cnn_idx[:, 1], cnn_idx[:, 2]] = True

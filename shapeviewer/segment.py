@@ -282,7 +282,7 @@ def isolate(
     if support_plane is not None:
         normal, d = unit_plane(support_plane)
         height = np.where(finite, np.nan_to_num(pts) @ normal + d, np.nan)
-        band = table_band(height[finite]) if min_height is None else min_height
+        band = table_band(height) if min_height is None else min_height
         with np.errstate(invalid="ignore"):
             keep &= (height >= band) & (height <= max_height)
     idx = np.flatnonzero(keep)

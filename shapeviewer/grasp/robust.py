@@ -79,6 +79,13 @@ class Robustness:
     epsilon_low: float
     epsilons: tuple[float, ...]
 
+    @classmethod
+    def of(cls, epsilons: Sequence[float], quantile: float = ROBUST_QUANTILE) -> Robustness:
+        """The robustness of a grasp with these ``epsilons`` over the samples, ``epsilon_low`` at
+        ``quantile``."""
+        e = np.asarray(epsilons, dtype=np.float64)
+        return cls(float(np.mean(e > 0.0)), float(np.quantile(e, quantile)), tuple(map(float, e)))
+
 
 def _read_parts(path: Path) -> list[np.ndarray]:
     """The vertex sets (K x 3 each) of the convex parts in an OBJ written by V-HACD (one ``o`` per part)."""
@@ -226,9 +233,7 @@ def robustness(
             results = [_sample_epsilons(*job, progress, cancel) for job in jobs]
     by_sample = {k: eps for result in results for k, eps in result.items()}
     epsilons = np.array([by_sample[k] for k in range(len(indexed))]).T  # grasps x samples
-    return [
-        Robustness(float(np.mean(e > 0.0)), float(np.quantile(e, quantile)), tuple(map(float, e))) for e in epsilons
-    ]
+    return [Robustness.of(e, quantile) for e in epsilons]
 
 
 def rank_robust(scores: Sequence[Robustness], lifts: Sequence[LiftResult | None] | None = None) -> list[int]:
