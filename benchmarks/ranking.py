@@ -10,11 +10,15 @@ re-ranks those same grasps offline, so rankings compare on identical grasps and 
 * ``robust q=<q>``: :func:`~shapeviewer.grasp.robust.rank_robust` with the robust epsilon taken at the
   lower quantile ``q`` of the samples' epsilons (0: the worst sample);
 * ``oracle``: a view counts as a success when any of its grasps lifted the true object (the ceiling
-  of any ranking of these grasps).
+  of any ranking of these grasps);
+* ``robust now`` (with ``--rerank``): the grasps ranked again by today's
+  :func:`~shapeviewer.grasp.robust.robustness` on the view's saved sample completions, so that a
+  change to the robust score is measured on the grasps and outcomes of an earlier evaluation.
 
     shapeviewer evaluate --out results/table50 --views tabletop --views-per-set 50 --grasps \\
         --n-grasps 10 --grasp-budget 10 --grasp-methods Ours-detailed --robust
-    python benchmarks/ranking.py results/table50 [more results folders] [--quantiles 0 0.25 0.5]
+    python benchmarks/ranking.py results/table50 [more results folders] [--quantiles 0 0.25 0.5] \\
+        [--rerank [--processes 2]]
 
 Prints the best grasp's lift success per view set for each ranking (a view without grasps counts as
 a failure, and a view whose grasping stage failed is left out, as in Table V).
@@ -24,10 +28,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing as mp
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+
+def rerank(root: Path, record: dict, method: str) -> int:
+    """The index of a view's best grasp by today's :func:`~shapeviewer.grasp.robust.robustness`,
+    on its saved grasps and sample completions (the evaluation's own robust step)."""
+    from shapeviewer.evaluation.records import samples_file, view_stem
+    from shapeviewer.evaluation.run import grasp_meshes, robust_ranking
+    from shapeviewer.grasp.serialize import grasps_from_json
+
+    entry = next(g for g in record["grasps"] if g["method"] == method)
+    grasps = grasps_from_json((root / entry["file"]).read_text()).grasps
+    completion, _, T_world_cam, table = grasp_meshes(root, record, method)
+    samples = root / samples_file(view_stem(record["object"], int(record["view"])))
+    ranked = robust_ranking(samples, grasps, completion, T_world_cam, table)
+    return next(i for i, r in enumerate(ranked) if r["rank"] == 0)
 
 
 def main() -> None:
@@ -35,12 +55,15 @@ def main() -> None:
     ap.add_argument("results", nargs="+", type=Path, help="results folders of shapeviewer evaluate --grasps --robust")
     ap.add_argument("--method", default="Ours-detailed")
     ap.add_argument("--quantiles", nargs="+", type=float, default=[0.0, 0.125, 0.25, 0.5])
+    ap.add_argument("--rerank", action="store_true", help="also rank by today's robustness (recomputed)")
+    ap.add_argument("--processes", type=int, default=2, help="views re-ranked at once, with --rerank")
     args = ap.parse_args()
 
     from shapeviewer.grasp.robust import Robustness, rank_robust
     from shapeviewer.grasp.serialize import grasps_from_json
 
     success: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    views = []
     for root in args.results:
         files = sorted((root / "views").glob("*.json"))
         if not files:
@@ -50,18 +73,26 @@ def main() -> None:
             entry = next((g for g in record.get("grasps", []) if g["method"] == args.method), None)
             if entry is None or entry["error"] or not entry["file"]:
                 continue  # as Table V does: a view whose grasping failed is reported apart
-            gs = grasps_from_json((root / entry["file"]).read_text())
-            lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]
-            robust = gs.meta.get("robustness")
-            picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}
-            if robust:
-                for q in args.quantiles:
-                    scores = [Robustness.of(r["epsilons"], q) for r in robust]
-                    picks[f"robust q={q:g}"] = rank_robust(scores, [g.lift for g in gs.grasps])[0]
-            for name, i in picks.items():
-                ok = float(lifted[i]) if lifted else 0.0
-                for s in (record["view_set"], "all"):
-                    success[name][s].append(ok)
+            views.append((root, record, entry["file"]))
+    reranked = [None] * len(views)
+    if args.rerank:
+        with mp.get_context("fork").Pool(args.processes) as pool:
+            reranked = pool.starmap(rerank, [(root, record, args.method) for root, record, _ in views])
+    for (root, record, file), now in zip(views, reranked):
+        gs = grasps_from_json((root / file).read_text())
+        lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]
+        robust = gs.meta.get("robustness")
+        picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}
+        if robust:
+            for q in args.quantiles:
+                scores = [Robustness.of(r["epsilons"], q, r.get("lifted")) for r in robust]
+                picks[f"robust q={q:g}"] = rank_robust(scores, [g.lift for g in gs.grasps])[0]
+        if now is not None:
+            picks["robust now"] = now
+        for name, i in picks.items():
+            ok = float(lifted[i]) if lifted else 0.0
+            for s in (record["view_set"], "all"):
+                success[name][s].append(ok)
     sets = sorted({s for by_set in success.values() for s in by_set}, key=lambda s: (s == "all", s))
     print(f"{'ranking':16s} " + " ".join(f"{s:>24s}" for s in sets))
     for name, by_set in success.items():

@@ -65,6 +65,8 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
             wait_for_text(page, f"Robustness: rank 1 of {len(job.result)} · {holds} sample completions", timeout=30)
             assert "Ranked by robustness" in page_text(page)
             shown = dropdown_value(page, "Grasp")
-            assert shown.startswith(f"#{best + 1} ") and shown.endswith(holds)
+            # The most robust grasp is among those lifted on the samples, and says so.
+            lifted = f"lifted {round(8 * job.result[best].lifted)}/8"
+            assert shown.startswith(f"#{best + 1} ") and shown.endswith(f"{holds} · {lifted}")
     finally:
         viewer.stop()

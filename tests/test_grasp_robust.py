@@ -12,7 +12,7 @@ import trimesh
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.grasp.plan import PlanSettings, plan
-from shapeviewer.grasp.robust import Robustness, rank_robust, robustness
+from shapeviewer.grasp.robust import Robustness, palm_perturbations, rank_robust, robustness
 from shapeviewer.grasp.state import LiftResult
 
 SETTINGS = PlanSettings(samples=512, chains=32, steps=60, simulate=20)
@@ -40,7 +40,8 @@ def test_a_grasp_that_holds_on_the_completion_holds_on_identical_samples(scene):
     both, grasps = scene
     holding = [g for g in grasps if g.force_closure]
     assert holding
-    same = robustness(holding, [both.copy() for _ in range(8)], both)
+    exact = dict(pose_noise=0.0, rotation_noise=0.0, lift_top=0)  # the planned poses, no lift
+    same = robustness(holding, [both.copy() for _ in range(8)], both, **exact)
     for g, r in zip(holding, same):
         assert r.fraction == 1.0 and len(r.epsilons) == 8 and len(set(r.epsilons)) == 1
         assert r.epsilon_low == pytest.approx(g.epsilon, abs=0.01)
@@ -51,27 +52,50 @@ def test_a_grasp_that_holds_on_the_completion_holds_on_identical_samples(scene):
     jittered = [
         trimesh.Trimesh(both.vertices + rng.uniform(-1e-4, 1e-4, both.vertices.shape), both.faces) for _ in range(3)
     ]
-    scores = robustness(holding, jittered, both)
+    scores = robustness(holding, jittered, both, **exact)
     assert all(np.median(r.epsilons) == pytest.approx(g.epsilon, abs=0.005) for g, r in zip(holding, scores))
     assert np.mean([r.fraction for r in scores]) >= 0.9
 
 
-def test_no_grasp_holds_on_a_sample_far_away(scene):
+def test_pose_errors_are_seeded_and_spare_the_first_sample(scene):
+    errors = palm_perturbations(200, translation=0.005, rotation=3.0, seed=1)
+    assert np.array_equal(errors[0], np.eye(4))
+    assert np.array_equal(errors, palm_perturbations(200, translation=0.005, rotation=3.0, seed=1))
+    assert np.std(errors[1:, :3, 3]) == pytest.approx(0.005, rel=0.15)
+    angles = np.degrees(np.arccos(np.clip((np.trace(errors[1:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert 2.0 < np.median(angles) < 8.0  # |rotation vector| of three 3-degree axes: about 4.6 degrees
+    # Sample 0 is the planned pose: a grasp there keeps its planned epsilon; the others move the
+    # palm by millimetres, so the epsilons differ, but a grasp of a 5 cm block mostly survives.
+    both, grasps = scene
+    holding = [g for g in grasps if g.force_closure]
+    scores = robustness(holding, [both.copy() for _ in range(8)], both, lift_top=0)
+    for g, r in zip(holding, scores):
+        assert r.epsilons[0] == pytest.approx(g.epsilon, abs=0.01)
+        assert r.lifted is None
+    assert len({e for r in scores for e in r.epsilons[1:]}) > len(scores)
+    assert np.mean([r.fraction for r in scores]) >= 0.6
+
+
+def test_no_grasp_holds_on_or_lifts_a_sample_far_away(scene):
     both, grasps = scene
     away = both.copy()
     away.apply_translation([1.0, 0.0, 0.0])
-    scores = robustness(grasps, [both, away], both)
+    scores = robustness(grasps, [both, away], both, lift_top=3)
     assert any(r.epsilons[0] > 0 for r in scores)
     for r in scores:
         assert r.epsilons[1] <= 0.0  # no contact with the object that moved
         assert r.fraction == (0.5 if r.epsilons[0] > 0 else 0.0)
+    # The three most robust grasps were lifted on both samples: at most the one in reach comes up.
+    lifted = [r.lifted for r in scores if r.lifted is not None]
+    assert len(lifted) == 3 and all(share <= 0.5 for share in lifted)
+    assert any(share == 0.5 for share in lifted)  # a grasp of a 5 cm block picks it up
 
 
 def test_robust_ranking_puts_the_grasp_that_holds_on_more_samples_first(scene):
     both, grasps = scene
     # Half the samples have no right block: only grasps of the left block hold on every sample.
     samples = [both, both.copy(), block(-0.09), block(-0.09)]
-    scores = robustness(grasps, samples, both)
+    scores = robustness(grasps, samples, both, pose_noise=0.0, rotation_noise=0.0)
     order = rank_robust(scores)
     assert not on_left(grasps[0])  # the planner's best grasp holds the right block ...
     assert on_left(grasps[order[0]]) and scores[order[0]].fraction == 1.0  # ... the most robust one the left
@@ -87,6 +111,14 @@ def test_robust_ranking_puts_the_grasp_that_holds_on_more_samples_first(scene):
     # After the planner's lift check: grasps that lifted the mesh, then unchecked, then dropped.
     up, down = LiftResult(True, 0.12, 0.0), LiftResult(False, 0.0, 0.05)
     assert rank_robust(ranks, [down, None, up, up]) == [2, 3, 1, 0]
+    # Grasps lifted on the samples come before those not lifted there, by the share they lifted.
+    lifted = [
+        Robustness(0.5, 0.02, (), lifted=0.25),
+        Robustness(1.0, 0.03, ()),
+        Robustness(1.0, 0.001, (), lifted=1.0),
+        Robustness(1.0, 0.02, (), lifted=0.25),
+    ]
+    assert rank_robust(lifted) == [2, 3, 0, 1]
 
 
 def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):

@@ -79,6 +79,7 @@ GRASP_ROW_FIELDS = (
     "robust_rank",
     "robust_fraction",
     "robust_epsilon_low",
+    "robust_lifted",
 )
 
 
@@ -249,7 +250,8 @@ def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = N
 
     ``base``: object, view, view_set, method, hand. ``robustness``: per grasp, a grasp file's
     ``meta["robustness"]`` entry (``{"rank"`` by robustness, 0 first, ``"fraction"`` of sample
-    completions it holds on, ``"epsilon_low"``, ``"epsilons"}``, :mod:`grasp.robust`), or None when
+    completions it holds on, ``"epsilon_low"``, ``"epsilons"``, ``"lifted"``: the share of them it
+    lifted, None when not lifted``}``, :mod:`grasp.robust`), or None when
     the grasps were not ranked by robustness (the robust columns are then NaN). ``lift_planned``:
     the planner's lift check on the completion (NaN: not run). Units: joint error
     in degrees (mm for the Panda's prismatic fingers), pose error, lift rise and slip in mm;
@@ -279,6 +281,7 @@ def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = N
                 "robust_rank": float(robust.get("rank", math.nan)),
                 "robust_fraction": float(robust.get("fraction", math.nan)),
                 "robust_epsilon_low": float(robust.get("epsilon_low", math.nan)),
+                "robust_lifted": math.nan if robust.get("lifted") is None else float(robust["lifted"]),
             }
         )
     return rows

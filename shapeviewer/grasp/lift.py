@@ -14,6 +14,7 @@ the true object (:func:`~shapeviewer.grasp.execute.execute_grasps`).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pybullet as p
@@ -50,18 +51,21 @@ def lift_test(
     shake: bool = False,
     mass: float = 0.2,
     friction: float = 1.0,
+    parts: str | Path | None = None,
 ) -> LiftResult:
     """Whether the hand, at ``state``'s palm pose (world frame) and joints, lifts the object.
 
     The object (``mass`` kg, ``friction`` on it and on every hand link) starts where
     ``true_mesh_world`` puts it, resting on the table. The fingers squeeze towards closed under
     torque-limited position control for SETTLE_SECONDS, then the hand rises ``lift_height`` (m)
-    over LIFT_SECONDS, holds, and with ``shake`` moves sideways back and forth.
+    over LIFT_SECONDS, holds, and with ``shake`` moves sideways back and forth. ``parts``: an OBJ
+    of convex parts of the mesh (world frame) to collide with instead of its cached V-HACD
+    decomposition (see :meth:`~shapeviewer.grasp.world.GraspWorld.add_object`).
     """
     hand = get_hand(state.hand)
     with GraspWorld(hand, table=table) as world:
         c = world.client
-        body = world.add_object(true_mesh_world, movable=True, mass=mass, friction=friction)
+        body = world.add_object(true_mesh_world, movable=True, parts=parts, mass=mass, friction=friction)
         p.changeDynamics(body, -1, spinningFriction=SOFT_CONTACT_SPIN, physicsClientId=c)
         hb = world.hand
         set_joint_positions(hb, [state.joints[n] for n in hand.joint_names])

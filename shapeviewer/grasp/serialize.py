@@ -13,15 +13,16 @@ lengths in metres, angles in radians, except the execution errors, as named in `
                  "lift": null or {"success", "rise", "slip"},
                  "execution": null or {the executed state, "joint_error", "pose_error",
                                        "start_clear", "approach_contact", "lift": null or {...}},
-                 "robustness": null or {"fraction", "epsilon_low", "epsilons"}}]}
+                 "robustness": null or {"fraction", "epsilon_low", "epsilons", "lifted"}}]}
 
 ``lift`` is the planner's lift test of the grasp on the mesh it was planned on (rise and slip in
 metres); ``execution.lift`` is the same test on the true object.
 
 ``robustness`` (:class:`~shapeviewer.grasp.robust.Robustness`) is how the grasp fares re-closed on
 sample completions: the share of samples on which it holds, a lower quantile of its epsilon over
-them (the writer may name the quantile in ``meta``) and its epsilon on each sample. Files written
-before ``lift`` or ``robustness`` existed have no such key; they read as null.
+them (the writer may name the quantile in ``meta``), its epsilon on each sample, and the share of
+samples it lifted (null when it was not lifted on them). Files written before ``lift``,
+``robustness`` or ``lifted`` existed have no such key; they read as null.
 
 The palm frame is the hand URDF's base link frame (origin at the centre of the palm face, +z the
 approach). Reading uses ``T_world_palm``; position, quaternion, approach and force_closure are
@@ -135,6 +136,7 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None, robust
             "fraction": float(robustness.fraction),
             "epsilon_low": float(robustness.epsilon_low),
             "epsilons": _floats(robustness.epsilons),
+            "lifted": None if robustness.lifted is None else float(robustness.lifted),
         }
     )
     return d
@@ -204,6 +206,7 @@ def grasps_from_json(text: str | bytes) -> GraspSet:
             float(d["robustness"]["fraction"]),
             float(d["robustness"]["epsilon_low"]),
             tuple(map(float, d["robustness"]["epsilons"])),
+            None if d["robustness"].get("lifted") is None else float(d["robustness"]["lifted"]),
         )
         for d in doc["grasps"]
     ]

@@ -300,7 +300,9 @@ class GraspController:
         samples = self.host.samples(sid)
         if samples is None:
             raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
-        self.host.set_status(f"_Re-closing {len(s.grasps)} grasps on {len(samples)} sample completions..._")
+        self.host.set_status(
+            f"_Re-closing {len(s.grasps)} grasps on {len(samples)} sample completions, then lifting the best..._"
+        )
         try:
             scores = self.jobs.compute(job, robustness, s.grasps, samples, s.mesh_world, table=s.table)
         except RobustnessCancelled:
@@ -318,7 +320,8 @@ class GraspController:
             client,
             "Ranked by robustness",
             f"Segment {sid}: grasp #{order[0] + 1} is the most robust; it holds on "
-            f"{round(best.fraction * len(samples))} of {len(samples)} sample completions.",
+            f"{round(best.fraction * len(samples))} of {len(samples)} sample completions"
+            + ("." if best.lifted is None else f" and lifts {round(best.lifted * len(samples))} of them."),
             "green",
         )
         return scores

@@ -13,7 +13,7 @@ import numpy as np
 
 from ...grasp.execute import ExecutionResult
 from ...grasp.hands import Hand, get_hand
-from ...grasp.robust import ROBUST_QUANTILE, Robustness, rank_robust
+from ...grasp.robust import LIFT_TOP, ROBUST_QUANTILE, Robustness, rank_robust
 from ...grasp.state import LiftResult
 from .state import SegmentGrasps
 
@@ -42,9 +42,17 @@ def _holds(r: Robustness) -> str:
     return f"holds {round(r.fraction * len(r.epsilons))}/{len(r.epsilons)}"
 
 
+def _lifted(r: Robustness) -> str:
+    """`` · lifted <n>/<samples>``: how many sample completions a grasp lifted ("" when it was not
+    lifted on them)."""
+    n = len(r.epsilons)
+    return "" if r.lifted is None else f" · lifted {round(r.lifted * n)}/{n}"
+
+
 def grasp_options(s: SegmentGrasps) -> dict[str, int]:
     """The Grasp dropdown's entries for ``s``: ``#<planner rank>  ε <epsilon>`` (``· lifts`` when
-    the planner's lift check picked it up, ``· holds <n>/<samples>`` once ranked by robustness) ->
+    the planner's lift check picked it up, ``· holds <n>/<samples>`` once ranked by robustness, and
+    ``· lifted <m>/<samples>`` for the grasps lifted on the samples) ->
     index in ``s.grasps``, in the planner's order or,
     once ranked, most robust first. The number stays the planner's: it names the grasp's hand."""
     order = range(len(s.grasps)) if s.robustness is None else rank_robust(s.robustness, _lifts(s))
@@ -53,7 +61,9 @@ def grasp_options(s: SegmentGrasps) -> dict[str, int]:
         g = s.grasps[k]
         entry = f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)")
         entry += " · lifts" if g.lifted else ""
-        options[entry + ("" if s.robustness is None else f" · {_holds(s.robustness[k])}")] = k
+        if s.robustness is not None:
+            entry += f" · {_holds(s.robustness[k])}{_lifted(s.robustness[k])}"
+        options[entry] = k
     return options
 
 
@@ -68,7 +78,7 @@ def _robustness_line(scores: list[Robustness], lifts: list[LiftResult | None], k
     rank = rank_robust(scores, lifts).index(k) + 1
     return (
         f"**Robustness**: rank **{rank}** of {len(scores)} · **{_holds(r)}** sample completions "
-        f"({100 * r.fraction:.0f}%) · {100 * ROBUST_QUANTILE:.0f}% ε {r.epsilon_low:.4f}"
+        f"({100 * r.fraction:.0f}%){_lifted(r)} · {100 * ROBUST_QUANTILE:.0f}% ε {r.epsilon_low:.4f}"
     )
 
 
@@ -90,8 +100,9 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
         lines.append(f"Colour: ε from red (0) to green (ε = {best:.3f}, the best); grey: no force closure.")
     if s.robustness:
         lines.append(
-            f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions: most robust "
-            f"first (the share of samples a grasp holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
+            f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions, the palm off "
+            f"by up to a few mm and degrees on each: most robust first (the share of samples a grasp lifts, "
+            f"for the {LIFT_TOP} best, then the share it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
             "after those that lift the mesh."
         )
     if real_capture:
