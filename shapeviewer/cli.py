@@ -553,7 +553,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--robust",
         action="store_true",
         help="with --grasps: also rank the grasps of Ours-fast and Ours-detailed by robustness over the "
-        "CNN's 8 sample completions (Table V's '(robust)' best grasp, the same grasps)",
+        "CNN's 8 sample completions, grasped with the palm a few mm off and lifted (Table V's '(robust)' "
+        "best grasp, the same grasps)",
     )
     s.add_argument(
         "--grasp-methods",

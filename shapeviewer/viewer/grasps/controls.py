@@ -83,8 +83,9 @@ def build_grasp_panel(gui: viser.GuiApi, order: float | None = None) -> GraspPan
             "Rank by robustness",
             icon=viser.Icon.SHIELD_CHECK,
             disabled=True,
-            hint="Re-close every grasp on 8 sample completions (other plausible shapes of the unseen side) "
-            "and list the grasps that hold on most of them first",
+            hint="Re-close every grasp on 8 sample completions (other plausible shapes of the unseen side), "
+            "the hand a few mm off on each, lift the most robust on them, and list the grasps that lift "
+            "and hold most of them first",
         )
         grasp = gui.add_dropdown("Grasp", (NO_GRASP,), hint="Select a grasp: it is highlighted and described below")
         show_all = gui.add_checkbox("Show all", True, hint="Show the other grasps dimmed (off: only the selected one)")
