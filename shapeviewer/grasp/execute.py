@@ -28,7 +28,12 @@ from shapeviewer.grasp.plan import BACK_OFF, approach_and_close, object_contacts
 from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, HandState, LiftResult
-from shapeviewer.grasp.world import GraspWorld
+from shapeviewer.grasp.world import GraspWorld, convex_decomposition
+
+# s: the true object's V-HACD bound. Execution and every lift test collide with its decomposition
+# (cached), and V-HACD takes over a minute on some true meshes that lie flat along the world's axes
+# (a plate on the table), beyond the planner's VHACD_TIMEOUT, which suits completions a user waits for.
+TRUTH_VHACD_TIMEOUT = 300.0
 
 
 @dataclass(eq=False)
@@ -77,6 +82,8 @@ def execute_grasps(
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
     executed state. ``progress(fraction)`` reports 0..1 (the lift tests are most of the work);
     ``cancel()`` is asked before each lift test, and those not run keep ``lift`` None."""
+    if grasps:
+        convex_decomposition(true_mesh_world, timeout=TRUTH_VHACD_TIMEOUT)  # cached: every world below uses it
     by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)
