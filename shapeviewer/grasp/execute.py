@@ -82,11 +82,11 @@ def execute_grasps(
     section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
     executed state. ``progress(fraction)`` reports 0..1 (the lift tests are most of the work);
     ``cancel()`` is asked before each lift test, and those not run keep ``lift`` None."""
-    if grasps:
-        convex_decomposition(true_mesh_world, timeout=TRUTH_VHACD_TIMEOUT)  # cached: every world below uses it
     by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)
+    if grasps:
+        convex_decomposition(true_mesh_world, timeout=TRUTH_VHACD_TIMEOUT)  # cached: every world below uses it
     for hand_name in dict.fromkeys(g.hand for g in grasps):
         hand = get_hand(hand_name)
         with GraspWorld(hand, table=table) as world:
