@@ -35,15 +35,12 @@ from pathlib import Path
 import numpy as np
 
 
-def rerank(root: Path, record: dict, method: str) -> int:
+def rerank(root: Path, record: dict, method: str, grasps: list) -> int:
     """The index of a view's best grasp by today's :func:`~shapeviewer.grasp.robust.robustness`,
-    on its saved grasps and sample completions (the evaluation's own robust step)."""
+    on its saved ``grasps`` and sample completions (the evaluation's own robust step)."""
     from shapeviewer.evaluation.records import samples_file, view_stem
     from shapeviewer.evaluation.run import grasp_meshes, robust_ranking
-    from shapeviewer.grasp.serialize import grasps_from_json
 
-    entry = next(g for g in record["grasps"] if g["method"] == method)
-    grasps = grasps_from_json((root / entry["file"]).read_text()).grasps
     completion, _, T_world_cam, table = grasp_meshes(root, record, method)
     samples = root / samples_file(view_stem(record["object"], int(record["view"])))
     ranked = robust_ranking(samples, grasps, completion, T_world_cam, table)
@@ -73,13 +70,12 @@ def main() -> None:
             entry = next((g for g in record.get("grasps", []) if g["method"] == args.method), None)
             if entry is None or entry["error"] or not entry["file"]:
                 continue  # as Table V does: a view whose grasping failed is reported apart
-            views.append((root, record, entry["file"]))
+            views.append((root, record, grasps_from_json((root / entry["file"]).read_text())))
     reranked = [None] * len(views)
     if args.rerank:
         with mp.get_context("fork").Pool(args.processes) as pool:
-            reranked = pool.starmap(rerank, [(root, record, args.method) for root, record, _ in views])
-    for (root, record, file), now in zip(views, reranked):
-        gs = grasps_from_json((root / file).read_text())
+            reranked = pool.starmap(rerank, [(root, record, args.method, gs.grasps) for root, record, gs in views])
+    for (_, record, gs), now in zip(views, reranked):
         lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]
         robust = gs.meta.get("robustness")
         picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}

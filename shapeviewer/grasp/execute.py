@@ -24,14 +24,14 @@ import trimesh
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import Hand, get_hand
 from shapeviewer.grasp.lift import lift_test
-from shapeviewer.grasp.plan import BACK_OFF, approach_and_close, object_contacts
+from shapeviewer.grasp.plan import BACK_OFF, approach_and_close, hand_state
 from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, HandState, LiftResult
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition
 
-# s: the true object's V-HACD bound. Execution and every lift test collide with its decomposition
-# (cached), and V-HACD takes over a minute on some true meshes that lie flat along the world's axes
+# s: the true object's V-HACD bound. Execution and every lift test collide with its decomposition,
+# and V-HACD takes over a minute on some true meshes that lie flat along the world's axes
 # (a plate on the table), beyond the planner's VHACD_TIMEOUT, which suits completions a user waits for.
 TRUTH_VHACD_TIMEOUT = 300.0
 
@@ -85,12 +85,11 @@ def execute_grasps(
     by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)
-    if grasps:
-        convex_decomposition(true_mesh_world, timeout=TRUTH_VHACD_TIMEOUT)  # cached: every world below uses it
+    parts = convex_decomposition(true_mesh_world, timeout=TRUTH_VHACD_TIMEOUT) if grasps else None
     for hand_name in dict.fromkeys(g.hand for g in grasps):
         hand = get_hand(hand_name)
         with GraspWorld(hand, table=table) as world:
-            body = world.add_object(true_mesh_world, decompose=True)
+            body = world.add_object(true_mesh_world, parts=parts)
             for i, g in enumerate(grasps):
                 if g.hand != hand_name:
                     continue
@@ -99,19 +98,11 @@ def execute_grasps(
                     world, g.T_world_palm, planned, back_off=BACK_OFF, max_approach=BACK_OFF, targets=(planned, None)
                 )
                 assert closed is not None  # two closing targets
-                contacts, q = object_contacts(closed, body, com, radius)
-                T = world.palm_pose()
-                joints = dict(zip(hand.joint_names, map(float, closed.joints)))
+                state = hand_state(world, closed, body, com, radius)
                 by_index[i] = ExecutionResult(
-                    hand=hand_name,
-                    T_world_palm=T,
-                    dofs=dict(zip(hand.dof_names, map(float, closed.dofs))),
-                    joints=joints,
-                    contacts=contacts,
-                    epsilon=q.epsilon,
-                    volume=q.volume,
-                    joint_error=joint_error(hand, g.joints, joints),
-                    pose_error=1000.0 * float(np.linalg.norm(T[:3, 3] - g.T_world_palm[:3, 3])),
+                    **vars(state),
+                    joint_error=joint_error(hand, g.joints, state.joints),
+                    pose_error=1000.0 * float(np.linalg.norm(state.T_world_palm[:3, 3] - g.T_world_palm[:3, 3])),
                     start_clear=clear,
                     approach_contact=approach.contact,
                 )
@@ -123,7 +114,7 @@ def execute_grasps(
         for j, r in enumerate(results):
             if cancel is not None and cancel():
                 break
-            r.lift = lift_test(r, true_mesh_world, table=table, shake=shake)
+            r.lift = lift_test(r, true_mesh_world, table=table, shake=shake, parts=parts)
             if progress is not None:
                 progress(share + (1 - share) * (j + 1) / len(results))
     return results

@@ -48,7 +48,7 @@ from shapeviewer.grasp.object_field import ObjectField
 from shapeviewer.grasp.quality import GraspQuality, grasp_quality
 from shapeviewer.grasp.samples import hand_samples
 from shapeviewer.grasp.search import CancelFn, PlanSettings, ProgressFn, distinct, search
-from shapeviewer.grasp.state import Grasp, GraspContact, lift_order
+from shapeviewer.grasp.state import Grasp, GraspContact, HandState, lift_order
 from shapeviewer.grasp.world import ApproachResult, CloseResult, Decomposition, GraspWorld
 
 BACK_OFF = 0.2  # m: the protocol backs the open hand off this far along the approach (SPEC section 8)
@@ -99,24 +99,31 @@ def object_contacts(
     return contacts, grasp_quality([c.position for c in contacts], [c.normal for c in contacts], com, radius)
 
 
-def _grasp_from_world(world: GraspWorld, body: int, obj: ObjectField, closed: CloseResult) -> Grasp:
-    """The hand's current state in ``world`` as a :class:`Grasp` on object ``body`` (qualities
-    from its contacts, energy from ``obj``, the same object's field)."""
+def hand_state(world: GraspWorld, closed: CloseResult, body: int, com: np.ndarray, radius: float) -> HandState:
+    """The hand's current state in ``world`` after ``closed`` as a :class:`HandState` on object
+    ``body``: its palm pose and joints, and its contacts and their qualities for the object's
+    centre of mass ``com`` (world frame) and max radius (m), see :func:`object_contacts`."""
     hand = world.hand.hand
-    T = world.palm_pose()
-    contacts, q = object_contacts(closed, body, obj.com, obj.max_radius)
-    vc_p, vc_n = hand.virtual_contacts_palm(closed.joints)
-    energy = float(obj.contact_energy(vc_p @ T[:3, :3].T + T[:3, 3], vc_n @ T[:3, :3].T))
-    return Grasp(
+    contacts, q = object_contacts(closed, body, com, radius)
+    return HandState(
         hand.name,
-        T,
+        world.palm_pose(),
         dict(zip(hand.dof_names, map(float, closed.dofs))),
         dict(zip(hand.joint_names, map(float, closed.joints))),
         contacts,
         q.epsilon,
         q.volume,
-        energy,
     )
+
+
+def _grasp_from_world(world: GraspWorld, body: int, obj: ObjectField, closed: CloseResult) -> Grasp:
+    """The hand's current state in ``world`` as a :class:`Grasp` on object ``body`` (qualities
+    from its contacts, energy from ``obj``, the same object's field)."""
+    state = hand_state(world, closed, body, obj.com, obj.max_radius)
+    T = state.T_world_palm
+    vc_p, vc_n = world.hand.hand.virtual_contacts_palm(closed.joints)
+    energy = float(obj.contact_energy(vc_p @ T[:3, :3].T + T[:3, 3], vc_n @ T[:3, :3].T))
+    return Grasp(**vars(state), energy=energy)
 
 
 def _table_gap(world: GraspWorld, radius: float) -> float:

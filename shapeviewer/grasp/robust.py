@@ -62,7 +62,7 @@ from scipy.spatial.transform import Rotation
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.lift import lift_test
-from shapeviewer.grasp.plan import APPROACH_SLACK, BACK_OFF, approach_and_close, object_contacts
+from shapeviewer.grasp.plan import APPROACH_SLACK, BACK_OFF, approach_and_close, hand_state
 from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, HandState, LiftResult, lift_order
@@ -203,6 +203,16 @@ class _Sample:
     error: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Closed:
+    """The grasps re-closed on one sample: each grasp's epsilon and closed state there, and the
+    OBJ of the sample's convex parts they collided with (the lifts reuse it)."""
+
+    epsilons: list[float]
+    states: list[HandState]
+    parts: Path
+
+
 def _close_on_samples(
     grasps: Sequence[Grasp],
     samples: Sequence[_Sample],
@@ -211,21 +221,21 @@ def _close_on_samples(
     folder: str,
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
-) -> dict[int, tuple[list[float], list[HandState]]]:
+) -> dict[int, _Closed]:
     """Each grasp re-closed on each of ``samples`` with its pose error, in one world whose object
-    is swapped per sample, cut into ``parts`` (written to ``folder``): per sample index, every
-    grasp's epsilon and closed state there. ``progress`` is told the share of samples done;
-    ``cancel`` is asked before each sample."""
+    is swapped per sample, cut into ``parts`` (written to ``folder``), by sample index.
+    ``progress`` is told the share of samples done; ``cancel`` is asked before each sample."""
     hand = get_hand(grasps[0].hand)
-    out: dict[int, tuple[list[float], list[HandState]]] = {}
+    out: dict[int, _Closed] = {}
     with GraspWorld(hand, table=table) as world:
         for s in samples:
             if cancel is not None and cancel():
                 raise RobustnessCancelled
-            body = world.add_object(s.mesh, parts=parts.obj(s.mesh, Path(folder) / f"sample{s.index}.obj"))
+            path = parts.obj(s.mesh, Path(folder) / f"sample{s.index}.obj")
+            body = world.add_object(s.mesh, parts=path)
             com = centre_of_mass(s.mesh)
             radius = max_radius(s.mesh.vertices, com)
-            epsilons, states = [], []
+            states = []
             for g in grasps:
                 _, _, closed = approach_and_close(
                     world,
@@ -234,45 +244,29 @@ def _close_on_samples(
                     max_approach=BACK_OFF + APPROACH_SLACK,
                 )
                 assert closed is not None  # the default targets close once
-                contacts, quality = object_contacts(closed, body, com, radius)
-                epsilons.append(quality.epsilon)
-                states.append(
-                    HandState(
-                        hand.name,
-                        world.palm_pose(),
-                        dict(zip(hand.dof_names, map(float, closed.dofs))),
-                        dict(zip(hand.joint_names, map(float, closed.joints))),
-                        contacts,
-                        quality.epsilon,
-                        quality.volume,
-                    )
-                )
+                states.append(hand_state(world, closed, body, com, radius))
             world.remove_object(body)
-            out[s.index] = (epsilons, states)
+            out[s.index] = _Closed([h.epsilon for h in states], states, path)
             if progress is not None:
                 progress(len(out) / len(samples))
     return out
 
 
 def _lift_on_samples(
-    states: dict[int, list[HandState]],
-    samples: Sequence[_Sample],
-    parts: _Parts,
+    work: dict[int, tuple[trimesh.Trimesh, Path, list[HandState]]],
     table: bool,
-    folder: str,
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
 ) -> dict[int, list[bool]]:
-    """The lift test of each closed state in ``states`` (per sample index) on its sample, the
-    sample one movable body of its ``parts`` (written to ``folder``)."""
+    """The lift test of closed states on their sample: ``work`` maps a sample index to its mesh,
+    the OBJ of its convex parts (it moves as one body of them) and the states."""
     out: dict[int, list[bool]] = {}
-    for s in samples:
+    for k, (mesh, parts, states) in work.items():
         if cancel is not None and cancel():
             raise RobustnessCancelled
-        path = parts.obj(s.mesh, Path(folder) / f"sample{s.index}.obj")
-        out[s.index] = [lift_test(h, s.mesh, table=table, parts=path).success for h in states[s.index]]
+        out[k] = [lift_test(h, mesh, table=table, parts=parts).success for h in states]
         if progress is not None:
-            progress(len(out) / len(samples))
+            progress(len(out) / len(work))
     return out
 
 
@@ -336,14 +330,13 @@ def robustness(
     errors = palm_perturbations(len(samples_world), translation=pose_noise, rotation=rotation_noise, seed=seed)
     samples = [_Sample(k, m, e) for k, (m, e) in enumerate(zip(samples_world, errors))]
     shares = [samples[i::processes] for i in range(min(processes, len(samples)))]
-    lifting = lift_top > 0
     lifted = min(lift_top, len(grasps))
     closing_share = len(grasps) / (len(grasps) + LIFT_COST * lifted)  # of the work, for progress
 
     def closing(share: float) -> None:
         progress(closing_share * share)  # type: ignore[misc]
 
-    def lifting_progress(share: float) -> None:
+    def lifting(share: float) -> None:
         progress(closing_share + (1.0 - closing_share) * share)  # type: ignore[misc]
 
     with tempfile.TemporaryDirectory(prefix="shapeviewer-robust-") as folder:
@@ -353,16 +346,16 @@ def robustness(
             None if progress is None else closing,
             cancel,
         )
-        epsilons = np.array([closed[k][0] for k in range(len(samples))]).T  # grasps x samples
+        epsilons = np.array([closed[k].epsilons for k in range(len(samples))]).T  # grasps x samples
         scores = [Robustness.of(e, quantile) for e in epsilons]
-        if not lifting:
+        if not lifted:
             return scores
         top = rank_robust(scores, [g.lift for g in grasps])[:lifted]
         jobs = [
-            ({s.index: [closed[s.index][1][i] for i in top] for s in share}, share, parts, table, folder)
+            ({s.index: (s.mesh, closed[s.index].parts, [closed[s.index].states[i] for i in top]) for s in share}, table)
             for share in shares
         ]
-        lifts = _shared(_lift_on_samples, jobs, None if progress is None else lifting_progress, cancel)
+        lifts = _shared(_lift_on_samples, jobs, None if progress is None else lifting, cancel)
     by_grasp = {i: float(np.mean([lifts[k][j] for k in range(len(samples))])) for j, i in enumerate(top)}
     return [Robustness.of(e, quantile, by_grasp.get(i)) for i, e in enumerate(epsilons)]
 
