@@ -508,6 +508,11 @@ class ResultsStore:
     def grasp_tables_summary(self) -> dict:
         """Tables IV/V cells (:func:`tables.summarize_grasps`) over every grasp in the store, as
         ``shapeviewer evaluate`` computes them: pooled over the grasps, read from the grasp files."""
+        return tables.summarize_grasps(*self._grasp_records())
+
+    def _grasp_records(self) -> tuple[list[dict], list[dict]]:
+        """Every view with grasp entries, as records with ``object``, ``view``, ``view_set`` and
+        ``grasps``, and their grasps (:func:`records.load_grasp_rows`, read from the grasp files)."""
         records: dict[tuple[str, int], dict] = {}
         for name, view, view_set, method, hand, gfile, n, seconds_plan, error in self._read(
             "SELECT g.object, g.view, v.view_set, g.method, g.hand, g.file, g.n, g.seconds_plan, g.error "
@@ -524,17 +529,20 @@ class ResultsStore:
                     "error": error or "",
                 }
             )
-        return tables.summarize_grasps(list(records.values()), load_grasp_rows(self.root, list(records.values())))
+        found = list(records.values())
+        return found, load_grasp_rows(self.root, found)
 
     def tables_markdown(self) -> str:
         """The evaluation's ``tables.md`` for the whole store: Tables I-III, per shape kind, and
-        Tables IV/V when grasp results exist, with the paper's figures (:mod:`.tables`)."""
+        Tables IV/V (also per shape kind) when grasp results exist, with the paper's figures
+        (:mod:`.tables`)."""
         rows = self.rows()
         md = tables.completion_tables_markdown(tables.summarize(rows)) + tables.kind_table_markdown(rows)
-        grasps = self.grasp_tables_summary()
+        records, grasp_rows = self._grasp_records()
+        grasps = tables.summarize_grasps(records, grasp_rows)
         if not grasps:
             return md + "\n_No grasp results in this store (Tables IV and V)._\n"
-        return md + tables.grasp_tables_markdown(grasps)
+        return md + tables.grasp_tables_markdown(grasps) + tables.kind_grasp_table_markdown(records, rows, grasp_rows)
 
     # ------------------------------------------------------------------------------------------
     # Files

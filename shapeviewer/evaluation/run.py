@@ -75,6 +75,7 @@ from .tables import (
     completion_tables_markdown,
     csv_text,
     grasp_tables_markdown,
+    kind_grasp_table_markdown,
     kind_table_markdown,
     summarize,
     summarize_grasps,
@@ -567,7 +568,7 @@ def write_tables(out_dir, views: list[tuple[str, int, str]], seed: int, n_per_se
     md = completion_tables_markdown(summary, n_per_set=n_per_set, seed=seed) + kind_table_markdown(rows)
     if g_summary:
         atomic_write(out / "grasp_rows.csv", csv_text(GRASP_ROW_FIELDS, g_rows))
-        md += grasp_tables_markdown(g_summary)
+        md += grasp_tables_markdown(g_summary) + kind_grasp_table_markdown(records, rows, g_rows)
     atomic_write(out / "tables.md", md)
     write_tables_csv(summary, out / "tables.csv", g_summary)
     return {"rows": rows, "summary": summary, "grasp_rows": g_rows, "grasp_summary": g_summary, "tables_md": md}

@@ -7,7 +7,8 @@
 * Summaries: :func:`summarize` (completion rows -> means per view set and method) and
   :func:`summarize_grasps` (grasp entries and rows -> Tables IV/V cells).
 * Renderings: Tables I-III (:func:`completion_tables_markdown`), per shape kind
-  (:func:`kind_table_markdown`), Tables IV/V (:func:`grasp_tables_markdown`), the Dataset tab's
+  (:func:`kind_table_markdown`), Tables IV/V (:func:`grasp_tables_markdown`) and Table V per shape
+  kind (:func:`kind_grasp_table_markdown`), the Dataset tab's
   compact panel (:func:`panel_markdown`), every cell as CSV (:func:`write_tables_csv`) and the
   results store's CSV exports (:func:`view_csv`, :func:`objects_csv`).
 
@@ -156,6 +157,13 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def best_grasp_lifts(rows: list[dict], rank: str = "rank") -> dict[tuple[str, int, str, str], float]:
+    """``{(object, view, method, hand): lift success}`` of each view's best grasp by ``rank``
+    (``"rank"``: the planner's order; ``"robust_rank"``: by robustness), from grasp rows
+    (:func:`records.load_grasp_rows`). A view without grasps, or never ranked so, has no key."""
+    return {(r["object"], int(r["view"]), r["method"], r["hand"]): r["lift_success"] for r in rows if r[rank] == 0}
+
+
 def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
     """``{hand: {view_set or "all": {method: cell}}}`` over every grasp entry of the records.
 
@@ -170,10 +178,7 @@ def summarize_grasps(records: list[dict], rows: list[dict]) -> dict:
     without error), ``no_grasp`` (of those, views where the planner found none), ``failed``
     (entries with an error) and ``seconds_plan`` (mean per view).
     """
-    best, best_robust = (
-        {(r["object"], int(r["view"]), r["method"], r["hand"]): r["lift_success"] for r in rows if r[rank] == 0}
-        for rank in ("rank", "robust_rank")
-    )
+    best, best_robust = (best_grasp_lifts(rows, rank) for rank in ("rank", "robust_rank"))
     hands = sorted({g["hand"] for rec in records for g in rec.get("grasps", [])})
     out: dict = {}
     for hand in hands:
@@ -400,6 +405,49 @@ def grasp_tables_markdown(g_summary: dict) -> str:
                 f"{fmt(c['seconds_plan'], 1)} |"
             )
         lines += ["", "Per-grasp values are in grasp_rows.csv, per-view means in views/*.json.", ""]
+    return "\n".join(lines)
+
+
+def kind_grasp_table_markdown(records: list[dict], rows: list[dict], grasp_rows: list[dict]) -> str:
+    """The best grasp's lift success per shape kind and method, every view set pooled, for each
+    hand: Table V's "best grasp" per kind, so that a family the grasps fail on shows.
+
+    ``records``: the views with their grasp entries (as for :func:`summarize_grasps`); ``rows``:
+    their completion rows, which carry each object's ``kind``; ``grasp_rows``: their grasps. A view
+    whose planner found no grasp counts as a failed lift; entries with an error are left out.
+    Empty when no grasp entry or no kind is known."""
+    kind_of = {r["object"]: r["kind"] for r in rows if r.get("kind")}
+    best, best_robust = (best_grasp_lifts(grasp_rows, rank) for rank in ("rank", "robust_rank"))
+    entries = [(rec, g) for rec in records for g in rec.get("grasps", []) if not g["error"]]
+    if not kind_of or not entries:
+        return ""
+    lines = []
+    for hand in sorted({g["hand"] for _, g in entries}):
+        methods = [m for m in METHODS if any(g["method"] == m and g["hand"] == hand for _, g in entries)]
+        robust = [m for m in methods if any(k[2:] == (m, hand) for k in best_robust)]
+        columns = [(m, best) for m in methods] + [(m, best_robust) for m in robust]
+        lines += [
+            f"## Per shape kind: best grasp's lift success, {hand} hand (all view sets)",
+            "",
+            *_header(["kind", "views", *methods, *map(robust_label, robust)]),
+        ]
+        for kind in sorted({kind_of.get(rec["object"], "") for rec, _ in entries} - {""}):
+            cells, views = [], set()
+            for m, lifts in columns:
+                keys = [
+                    (rec["object"], int(rec["view"]), m, hand)
+                    for rec, g in entries
+                    if g["method"] == m and g["hand"] == hand and kind_of.get(rec["object"]) == kind
+                ]
+                views.update(k[:2] for k in keys)
+                cells.append(f"{fmt_share(nanmean(lifts.get(k, 0.0) for k in keys), 0)}" if keys else "–")
+            lines.append(f"| {kind} | {len(views)} | " + " | ".join(cells) + " |")
+        lines += [
+            "",
+            "The share of a kind's views whose best grasp lifted the true object (a view without "
+            "grasps counts as a failure), over the views each method was grasped on.",
+            "",
+        ]
     return "\n".join(lines)
 
 
