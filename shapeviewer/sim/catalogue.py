@@ -93,6 +93,8 @@ def model_split(name: str) -> str:
         return "holdout_model" if stable_percent(name) < HOLDOUT_RANDOM_PERCENT else "train"
     if source == "household":
         return "holdout_model" if stable_percent(name) < HOLDOUT_HOUSEHOLD_PERCENT else "train"
+    if source == "novel":  # kinds no training data holds (:mod:`.novel`)
+        return "holdout_model"
     return "train"
 
 
@@ -131,6 +133,17 @@ def _urdf_mesh(urdf: Path) -> tuple[Path, tuple]:
     if len(scale) != 3:
         raise ValueError(f"{urdf}: scale {m.group(2)!r} is not three numbers")
     return urdf.parent / m.group(1), scale
+
+
+def _novel(name: str) -> tuple[str, int] | None:
+    """``(kind, index)`` of a novel-kind name (``novel/ring_003``, :mod:`.novel`), else None. Novel
+    objects resolve to meshes but are never in :func:`catalogue`, so no training data holds them."""
+    from . import novel
+
+    m = re.fullmatch(r"novel/(\w+?)_(\d{3})", name)
+    if m and m.group(1) in novel.KINDS and int(m.group(2)) < novel.PER_KIND:
+        return m.group(1), int(m.group(2))
+    return None
 
 
 def _household_path(name: str) -> str | None:
@@ -238,6 +251,10 @@ def _cache_path(name: str) -> Path:
         from . import household
 
         stem = f"household-v{household.VERSION}__{name.partition('/')[2]}"
+    elif name.startswith("novel/"):
+        from . import novel
+
+        stem = f"novel-v{novel.VERSION}__{name.partition('/')[2]}"
     return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (stem + ".npz")
 
 
@@ -257,9 +274,13 @@ def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
     if cp.exists():
         with np.load(cp) as z:
             return trimesh.Trimesh(z["vertices"], z["faces"], process=False)
-    hh = _household_path(name)
+    hh, novel_kind = _household_path(name), _novel(name)
     if hh is not None:
         mesh = _build("household", hh, (1.0, 1.0, 1.0))
+    elif novel_kind is not None:
+        from . import novel
+
+        mesh = novel.make(*novel_kind)
     else:
         srcs = {n: (p, s) for n, src, p, s in _sources() if src != "household"}
         if name not in srcs:
@@ -391,7 +412,8 @@ YCB_KIND = {obj: kind for kind, names in _YCB_KINDS.items() for obj in names.spl
 def shape_kind(name: str) -> str:
     """A coarse shape family of a catalogue name, for per-kind reports.
 
-    Household objects give their generator family (``household/drill_001`` -> ``drill``); YCB objects
+    Household and novel objects give their generator family (``household/drill_001`` -> ``drill``,
+    ``novel/ring_002`` -> ``ring``); YCB objects
     map by hand to the same vocabulary (:data:`household.KINDS` plus ``ball`` and ``other``);
     ``random/*`` is ``random``; named pybullet objects are ``mug`` (pybullet/mug) or ``other``.
     """
@@ -402,4 +424,6 @@ def shape_kind(name: str) -> str:
         return YCB_KIND.get(short, "other")
     if source == "random":
         return "random"
+    if source == "novel":
+        return short.rsplit("_", 1)[0]
     return "mug" if name == "pybullet/mug" else "other"
