@@ -198,9 +198,9 @@ def complete(
     """Complete one object's points into a closed mesh: the one entry point every caller uses.
 
     The points are first cut as the app's segmentation would have cut them
-    (:func:`segment.isolate`: above the table's bottom band, the largest cluster, without flying
-    pixels), so a mask from known poses or a detector completes like the segments the network
-    learnt from.
+    (:func:`segment.isolate`: above the table's bottom band, the largest cluster and the large
+    parts near it, without flying pixels), so a mask from known poses or a detector completes like
+    the segments the network learnt from.
 
     Args:
         points_cam: (N, 3) the object's observed points, camera optical frame (x right, y down,

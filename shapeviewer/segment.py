@@ -44,6 +44,12 @@ TABLE_NOISE_SIGMAS = 3.5  # the band in the table's noise (RMS height of the poi
 TABLE_NOISE_DEPTH = 0.03  # m: points this far below the plane at most count as its noise
 TABLE_NOISE_MIN_POINTS = 20  # fewer points under the plane than this: no table in the points
 MAX_HEIGHT = 0.5  # m above the support plane
+# isolate: a selection of one object's points (a mask) can fall apart into clusters where a part's
+# connection is hidden or dropped at depth edges (a dumbbell's bar, a mug's handle); a cluster of
+# at least PART_SHARE of the largest one's points within PART_GAP of it is part of the object, not
+# a stray pixel or the table's edge.
+PART_SHARE = 0.2
+PART_GAP = 0.1  # m
 # Flying pixels: silhouette pixels a depth camera puts between an object and what lies behind it
 # (RealSense-style sensors make many). They trail off the surface in ones and twos, while a point
 # on any surface, even at its edge or on a one-pixel-wide handle, has neighbours within a few point
@@ -271,9 +277,11 @@ def isolate(
     only ever saw segments without them. So, with the same defaults as :func:`segment_scene`: with a
     ``support_plane`` ``(a, b, c, d)`` (camera frame), only points ``min_height``..``max_height`` above
     it count (``min_height`` None: :func:`table_band` of these points, whose table ring, if any, tells
-    the table's noise); of those, the largest Euclidean cluster is kept, without its :func:`flying_pixels`.
-    Non-finite points are never kept. When this leaves fewer than a tenth of the finite points, every
-    finite point is kept instead (a flat object, such as a plate, lies almost wholly in the band)."""
+    the table's noise); of those, the largest Euclidean cluster is kept with every cluster of at least
+    ``PART_SHARE`` of its points within ``PART_GAP`` of it (the parts of an object whose connection the
+    camera did not see), without their :func:`flying_pixels`. Non-finite points are never kept. When
+    this leaves fewer than a tenth of the finite points, every finite point is kept instead (a flat
+    object, such as a plate, lies almost wholly in the band)."""
     from .voxel import unit_plane
 
     pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
@@ -288,10 +296,11 @@ def isolate(
     idx = np.flatnonzero(keep)
     if len(idx):
         inverse, centroids = _voxel_downsample(pts[idx], voxel_size)
-        labels = _euclidean_clusters(centroids, max(cluster_tolerance, voxel_size))[inverse]
+        voxel_labels = _euclidean_clusters(centroids, max(cluster_tolerance, voxel_size))
+        parts = _object_parts(centroids, voxel_labels, np.bincount(voxel_labels[inverse]))
+        kept = idx[np.isin(voxel_labels[inverse], parts)]
         keep[:] = False
-        largest = idx[labels == np.bincount(labels).argmax()]
-        keep[largest[~flying_pixels(pts[largest])]] = True
+        keep[kept[~flying_pixels(pts[kept])]] = True
     if keep.sum() < 0.1 * finite.sum():
         return finite
     return keep
@@ -463,6 +472,22 @@ def flying_pixels(points_cam: np.ndarray) -> np.ndarray:
     if spacing <= 0:  # more than half the points repeat: nothing to measure against
         return np.zeros(len(pts), dtype=bool)
     return distances[:, FLYING_NEIGHBOURS] > FLYING_RADIUS * spacing
+
+
+def _object_parts(centroids: np.ndarray, labels: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """The cluster labels :func:`isolate` keeps: the largest cluster (``sizes``: points per label)
+    and every cluster of at least ``PART_SHARE`` of its points with a voxel ``centroids`` within
+    ``PART_GAP`` (m) of one of its voxels (``labels``: each voxel's cluster)."""
+    from scipy.spatial import cKDTree
+
+    largest = int(sizes.argmax())
+    candidates = np.flatnonzero((sizes >= PART_SHARE * sizes[largest]) & (np.arange(len(sizes)) != largest))
+    if not len(candidates):
+        return np.array([largest])
+    tree = cKDTree(centroids[labels == largest])
+    gaps = [tree.query(centroids[labels == c], distance_upper_bound=PART_GAP)[0] for c in candidates]
+    near = [c for c, gap in zip(candidates, gaps) if np.isfinite(gap).any()]
+    return np.array([largest, *near])
 
 
 def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:

@@ -151,6 +151,21 @@ def test_isolate_cuts_one_object_as_the_segmentation_would() -> None:
     assert isolate(ring, support_plane=plane_cam).all()
 
 
+def test_isolate_keeps_the_parts_of_one_object_whose_connection_was_not_seen() -> None:
+    """A dumbbell whose bar the camera missed (two weights 6 cm apart) keeps both weights; a crumb
+    beside it (a few stray points) and a smaller object 20 cm away (a neighbour in a detector's box)
+    are dropped."""
+    weights = [_box((-0.05, 0.0), (0.04, 0.08, 0.08)), _box((0.05, 0.0), (0.04, 0.08, 0.08))]
+    crumb = _box((0.0, 0.08), (0.01, 0.01, 0.01))
+    neighbour = _box((0.3, 0.0), (0.05, 0.05, 0.06))
+    mask = np.concatenate([*weights, crumb, neighbour])
+    kept = isolate(mask)
+    n = len(weights[0]) + len(weights[1])
+    assert kept[:n].all() and not kept[n:].any()
+    # One weight alone is still one object.
+    assert isolate(weights[0]).all()
+
+
 def test_flying_pixels_are_the_stray_points_behind_a_silhouette() -> None:
     """A box face seen at 1 m (2 mm pixels) with a one-pixel-wide handle, and 40 silhouette pixels
     that took depths between the face and the wall 30 cm behind it: exactly those 40 are flagged."""
