@@ -12,6 +12,7 @@ and the Hull (:func:`shapeviewer.baselines.hull_mesh`) are scored against the tr
 (:func:`shapeviewer.metrics.sampled_jaccard`) and the mean symmetric surface distance (mm).
 
     python benchmarks/novel_kinds.py [--per-kind 4] [--views 2] [--seed 0] [--input mask] [--processes 2]
+    python benchmarks/novel_kinds.py --objects holdout   # the same on the catalogue's holdout household objects
 
 Prints one line per view, then the means per kind and over all views, and how many views each
 completion beats the Hull on.
@@ -67,16 +68,28 @@ def main() -> None:
     ap.add_argument(
         "--input", choices=("mask", "segment"), default="mask", help="the object's pixels or the app's segment"
     )
+    ap.add_argument(
+        "--objects",
+        choices=("novel", "holdout"),
+        default="novel",
+        help="the novel kinds, or for comparison the catalogue's holdout household objects (the first of each kind)",
+    )
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args()
 
     from shapeviewer.evaluation.viewsets import TABLETOP_VIEW_OFFSET
-    from shapeviewer.sim import novel
+    from shapeviewer.sim import catalogue, household, novel
 
+    if args.objects == "novel":
+        names = novel.names(args.per_kind)
+    else:
+        holdout = sorted(e.name for e in catalogue.catalogue() if e.split == "holdout_model")
+        of_kind = {k: [n for n in holdout if n.startswith(f"household/{k}_")] for k in household.KINDS}
+        names = [n for k in household.KINDS for n in of_kind[k][: args.per_kind]]
     rng = np.random.default_rng([args.seed, 17])
     jobs = [
         (name, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)), args.seed, args.input)
-        for name in novel.names(args.per_kind)
+        for name in names
         for _ in range(args.views)
     ]
     threads = max(1, (mp.cpu_count() or 1) // args.processes)
