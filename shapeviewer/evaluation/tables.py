@@ -432,7 +432,8 @@ def kind_grasp_table_markdown(records: list[dict], rows: list[dict], grasp_rows:
             *_header(["kind", "views", *methods, *map(robust_label, robust)]),
         ]
         for kind in sorted({kind_of.get(rec["object"], "") for rec, _ in entries} - {""}):
-            cells, views = [], set()
+            cells: list[str] = []
+            views: set[tuple[str, int]] = set()
             for m, lifts in columns:
                 keys = [
                     (rec["object"], int(rec["view"]), m, hand)

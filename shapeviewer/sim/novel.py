@@ -32,8 +32,8 @@ def ring(rng: np.random.Generator) -> trimesh.Trimesh:
     r_out = rng.uniform(0.03, 0.08)
     r_in = r_out * rng.uniform(0.35, 0.7)
     h = rng.uniform(0.015, 0.06)
-    section = S.rounded(S.section(np.array([[r_in, 0.0], [r_out, 0.0], [r_out, h], [r_in, h]])), min(h, r_out - r_in) * 0.3)
-    return S.finish(S.revolve(section, 72))
+    outline = S.section(np.array([[r_in, 0.0], [r_out, 0.0], [r_out, h], [r_in, h]]))
+    return S.finish(S.revolve(S.rounded(outline, min(h, r_out - r_in) * 0.3), 72))
 
 
 def dumbbell(rng: np.random.Generator) -> trimesh.Trimesh:
