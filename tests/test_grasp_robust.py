@@ -12,7 +12,7 @@ import trimesh
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.grasp.plan import PlanSettings, plan
-from shapeviewer.grasp.robust import Robustness, palm_perturbations, rank_robust, robustness
+from shapeviewer.grasp.robust import Robustness, envelope_mesh, palm_perturbations, rank_robust, robustness
 from shapeviewer.grasp.state import LiftResult
 
 SETTINGS = PlanSettings(samples=512, chains=32, steps=60, simulate=20)
@@ -119,6 +119,30 @@ def test_robust_ranking_puts_the_grasp_that_holds_on_more_samples_first(scene):
         Robustness(1.0, 0.02, (), lifted=0.25),
     ]
     assert rank_robust(lifted) == [2, 3, 0, 1]
+
+
+def test_the_envelope_keeps_what_the_samples_hedge_on():
+    """Samples sure of a 10-voxel core and split about a 4-voxel shell around it (a vessel's hedged
+    cavity out to its wall): the envelope is closed, holds the whole shell, moves with ``T_world_cam``,
+    and the surface level keeps only the core."""
+    from shapeviewer.reconstruct import fast_mesh
+    from shapeviewer.voxel import GridFrame
+
+    frame = GridFrame(np.array([0.0, 0.0, 0.5]), 0.005)
+    p = np.zeros((40, 40, 40), np.float32)
+    p[11:29, 11:29, 11:29] = 0.4  # the shell: half the samples put the object there
+    p[15:25, 15:25, 15:25] = 0.9  # the core: all of them do
+    samples = np.stack([np.clip(p + d, 0, 1) for d in (-0.1, 0.0, 0.0, 0.1)])
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    envelope = envelope_mesh(samples, frame, T)
+    surface = fast_mesh(samples.mean(0), frame, level=0.5).apply_transform(T)
+    assert envelope.is_watertight
+    np.testing.assert_allclose(envelope.extents, 18 * 0.005, atol=0.006)  # the shell, not the core
+    np.testing.assert_allclose(surface.extents, 10 * 0.005, atol=0.006)
+    centre = frame.to_metres(np.full((1, 3), 20.0))[0] + T[:3, 3]
+    np.testing.assert_allclose(envelope.bounds.mean(0), centre, atol=0.003)
+    assert envelope.contains(surface.vertices[:50]).all()
 
 
 def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
