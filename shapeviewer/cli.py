@@ -552,16 +552,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--robust",
         action="store_true",
-        help="with --grasps: also rank the grasps of Ours-fast and Ours-detailed by robustness over the "
-        "CNN's 8 sample completions, grasped with the palm a few mm off and lifted (Table V's '(robust)' "
-        "best grasp, the same grasps)",
+        help="with --grasps: also rank the grasps of Ours-fast, Ours-detailed and Ours-envelope by robustness "
+        "over the CNN's 8 sample completions, grasped with the palm a few mm off and lifted (Table V's "
+        "'(robust)' best grasp, the same grasps)",
     )
     s.add_argument(
         "--grasp-methods",
         nargs="+",
         default=None,
         metavar="METHOD",
-        help="completions to grasp, of Partial Mirror Hull Ours-fast Ours-detailed (default: all five)",
+        help="meshes to grasp, of Partial Mirror Hull Ours-fast Ours-detailed and Ours-envelope (the grasp "
+        "envelope of the CNN's sample completions; default: all six)",
     )
     s.set_defaults(func=cmd_evaluate)
     return p

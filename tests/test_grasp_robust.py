@@ -179,3 +179,32 @@ def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
     assert ev.pending_grasps(record, options) == [] and "Ours-fast" not in ev.pending_grasps(record, ev.GraspOptions())
     plain = {**entry, "robust": False}
     assert ev.pending_grasps({"grasps": [plain]}, options) == ["Ours-fast"]
+
+
+def test_evaluate_grasps_the_envelope_of_the_samples(tmp_path):
+    """``Ours-envelope``: the view's grasp envelope is written beside its meshes, closed and larger
+    than the detailed completion, grasps are planned on it, executed on the true mesh and ranked
+    by robustness, and Table V has its columns."""
+    import trimesh as tm
+
+    views = ev.sample_views(1, seed=0)[:1]
+    options = ev.GraspOptions(
+        methods=("Ours-detailed", rec.ENVELOPE),
+        n_grasps=3,
+        settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8),
+        robust=True,
+    )
+    assert ev.run_views(tmp_path, views, workers=1, grasps=options, progress=False) == 1
+    tables = ev.write_tables(tmp_path, views, seed=0)
+    name, view, _ = views[0]
+    stem = rec.view_stem(name, view)
+    envelope = tm.load(tmp_path / rec.envelope_file(stem), process=False)
+    detailed = tm.load(tmp_path / "meshes" / f"{stem}__Ours-detailed.ply", process=False)
+    assert envelope.is_watertight and envelope.volume > detailed.volume
+    entry = {g["method"]: g for g in rec.load_view(tmp_path, name, view)["grasps"]}[rec.ENVELOPE]
+    assert entry["error"] == "" and entry["robust"] and entry["n"] >= 1
+    grasps = json.loads((tmp_path / entry["file"]).read_text())
+    assert grasps["meta"]["planned_on"] == rec.envelope_file(stem)
+    assert sorted(r["rank"] for r in grasps["meta"]["robustness"]) == list(range(entry["n"]))
+    assert "Ours-envelope (robust)" in tables["tables_md"] and "grasp envelope" in tables["tables_md"]
+    assert tables["grasp_summary"]["barrett"]["all"][rec.ENVELOPE]["views"] == 1

@@ -28,6 +28,10 @@ from ..fileio import atomic_write
 from ..sim import catalogue
 
 METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
+# Meshes grasps are planned on that are not completions scored in Tables I-III: the grasp envelope
+# of the CNN's sample completions (:func:`shapeviewer.grasp.robust.envelope_mesh`).
+ENVELOPE = "Ours-envelope"
+GRASP_TABLE_METHODS = (*METHODS, ENVELOPE)  # the columns of the grasp tables
 METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
 ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error")
 # What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
@@ -96,6 +100,12 @@ def view_file(root: str | Path, name: str, view: int) -> Path:
 def grasp_file(stem: str, method: str, hand: str = "barrett") -> str:
     """Path (relative to the results folder) of a view's grasps for one method and hand."""
     return f"grasps/{stem}__{method}{'' if hand == 'barrett' else '__' + hand}.json"
+
+
+def envelope_file(stem: str) -> str:
+    """Path (relative to the results folder) of a view's grasp envelope (camera frame, metres), made
+    from its sample completions when grasps are planned on it."""
+    return f"meshes/{stem}__{ENVELOPE}.ply"
 
 
 def samples_file(stem: str) -> str:

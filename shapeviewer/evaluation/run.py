@@ -55,11 +55,14 @@ from ..backends import BACKENDS, ray_init
 from ..fileio import atomic_write
 from ..sim import catalogue
 from .records import (
+    ENVELOPE,
     GRASP_MEANS,
     GRASP_ROW_FIELDS,
+    GRASP_TABLE_METHODS,
     METHODS,
     METRICS,
     ROW_FIELDS,
+    envelope_file,
     grasp_file,
     grasp_rows,
     load_grasp_rows,
@@ -206,13 +209,16 @@ GRASP_FRAME = (
     "y left (-camera x), z up (-camera y); no table"
 )
 TABLE_GRASP_FRAME = "table frame of the segmentation's support plane (z up, table at z = 0)"
-GRASP_METHODS = METHODS  # every completion, the baselines and both of our meshes (see the docstring)
-ROBUST_METHODS = ("Ours-fast", "Ours-detailed")  # the CNN's completions: they have sample completions
+# Every completion, the baselines and both of our meshes (see the docstring), and the grasp
+# envelope of the CNN's sample completions (records.ENVELOPE).
+GRASP_METHODS = GRASP_TABLE_METHODS
+ROBUST_METHODS = ("Ours-fast", "Ours-detailed", ENVELOPE)  # the CNN's: they have sample completions
 
 
 @dataclass(frozen=True)
 class GraspOptions:
-    """The grasp stage of :func:`evaluate`: completion ``methods`` grasped, the ``hand``, grasps
+    """The grasp stage of :func:`evaluate`: the ``methods`` grasped (completions, and ``Ours-envelope``,
+    the grasp envelope of the CNN's sample completions), the ``hand``, grasps
     planned per view and method, the planner's wall-clock ``budget_seconds`` (None: its full
     deterministic search), its search sizes (``settings``; None: the planner's defaults), and
     whether the grasps of :data:`ROBUST_METHODS` are also ranked by robustness (``robust``)."""
@@ -225,9 +231,9 @@ class GraspOptions:
     robust: bool = False
 
     def __post_init__(self) -> None:
-        unknown = [m for m in self.methods if m not in METHODS]
+        unknown = [m for m in self.methods if m not in GRASP_METHODS]
         if unknown or not self.methods:
-            raise ValueError(f"grasp methods must be some of {', '.join(METHODS)}; got {list(self.methods)}")
+            raise ValueError(f"grasp methods must be some of {', '.join(GRASP_METHODS)}; got {list(self.methods)}")
         if self.hand not in ("barrett", "panda"):
             raise ValueError(f"unknown hand {self.hand!r} (barrett or panda)")
         if self.n_grasps < 1:
@@ -328,11 +334,13 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         "frame": "evaluation_world",
         "error": "",
     }
-    missing = [k for k in ("truth", method) if k not in record["files"]]
+    missing = [k for k in ("truth", method) if k not in record["files"] and k != ENVELOPE]
     if missing:
         entry["error"] = f"no {' or '.join(missing)} mesh"
         return entry
     try:
+        if method == ENVELOPE:
+            record = {**record, "files": {**record["files"], ENVELOPE: write_envelope(out, record)}}
         completion, truth, T_world_cam, table = grasp_meshes(out, record, method)
         t0 = time.perf_counter()
         result = plan(
@@ -393,6 +401,25 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         entry["lift_success_best_robust"] = next((r["lift_success"] for r in rows if r["robust_rank"] == 0), 0.0)
         entry["seconds_robust"] = t3 - t2
     return entry
+
+
+def write_envelope(out_dir, record: dict) -> str:
+    """Write a view's grasp envelope (:func:`grasp.robust.envelope_mesh` of its saved sample
+    completions, camera frame) to ``out_dir`` and return its path there (:func:`records.envelope_file`).
+
+    Raises:
+        FileNotFoundError: the view has no saved sample completions.
+        EmptyCompletionError: nothing in their mean answer is above the envelope's level.
+    """
+    from ..grasp.robust import envelope_mesh
+    from ..voxel import GridFrame
+
+    stem = view_stem(record["object"], int(record["view"]))
+    with np.load(Path(out_dir) / samples_file(stem)) as saved:
+        mesh = envelope_mesh(saved["samples"], GridFrame(saved["center"], float(saved["voxel_size"])), np.eye(4))
+    rel = envelope_file(stem)
+    mesh.export(Path(out_dir) / rel)
+    return rel
 
 
 def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, table: bool) -> list[dict]:
