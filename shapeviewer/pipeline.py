@@ -40,6 +40,8 @@ class Completion:
         probabilities: (40, 40, 40) float32 CNN output.
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
+        envelope_mesh: the grasp envelope of the sample completions
+            (:func:`~shapeviewer.grasp.robust.envelope_mesh`; camera frame, metres) once computed.
         samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`)
             once computed; their per-voxel disagreement (:attr:`spread`) is the completion's uncertainty.
         partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
@@ -59,6 +61,7 @@ class Completion:
     context: np.ndarray | None = None
     support_plane: np.ndarray | None = None
     detailed_mesh: trimesh.Trimesh | None = None
+    envelope_mesh: trimesh.Trimesh | None = None
     partial_mesh: trimesh.Trimesh | None = None
     mirror_mesh: trimesh.Trimesh | None = None
     hull_mesh: trimesh.Trimesh | None = None

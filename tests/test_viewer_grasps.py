@@ -334,3 +334,21 @@ def test_real_capture_has_no_ground_truth(real_data):
         assert app.execute_grasps(sid, [0] if s.grasps else None) is None
         assert "No ground truth" in app.last_error and "real capture" in app.last_error
         assert node(app, f"/grasps/seg_{sid}/truth") is None
+
+
+def test_grasps_planned_on_the_grasp_envelope(app):
+    """Plan on: envelope makes the segment's grasp envelope first (from its sample completions),
+    draws it see-through around the fast mesh, and plans grasps on it that the robust ranking can
+    order."""
+    sid = largest_segments(app)[1]
+    job = app.plan_grasps(sid, "barrett", "envelope", N_GRASPS, seed=0)
+    assert job is not None and job.done.is_set() and job.error is None, job and job.error
+    c = app.completions[sid]
+    envelope = c.envelope_mesh
+    assert envelope is not None and envelope.is_watertight and c.samples is not None
+    assert envelope.volume > c.fast_mesh.volume
+    drawn = node(app, f"/envelope_mesh/seg_{sid}")
+    assert drawn is not None and drawn.opacity < 1
+    assert job.result is not None and job.result.method == "envelope" and job.result.grasps
+    name, data = app.export_bytes("mesh", sid, "ply", "camera", mesh="envelope")
+    assert name.endswith("_envelope_camera.ply") and data

@@ -31,6 +31,7 @@ PARTIAL_COLOR = (160, 160, 160)
 MIRROR_COLOR = (110, 150, 215)
 HULL_COLOR = (150, 120, 190)
 SAMPLE_COLOR = (120, 60, 160)  # the Confidence layer's purple: a sample is a guess
+ENVELOPE_OPACITY = 0.35
 # Points sent to a browser per scene (the cloud and the segments; picking and the pipeline use all
 # of them): a browser draws 300k points smoothly, millions not at all. The segments get up to
 # MAX_SEGMENT_POINTS of the budget, the cloud the rest.
@@ -231,6 +232,7 @@ class PipelineDrawing:
         colors = {
             "fast": shade(color, 1.35),
             "detailed": shade(color, 0.7),
+            "envelope": SAMPLE_COLOR,
             "partial": PARTIAL_COLOR,
             "mirror": MIRROR_COLOR,
             "hull": HULL_COLOR,
@@ -241,6 +243,8 @@ class PipelineDrawing:
             transform_points(scene.T_world_cam, mesh.vertices),
             np.asarray(mesh.faces),
             color=colors[kind],
+            # The envelope wraps the completion: see-through, so the completion shows inside it.
+            opacity=ENVELOPE_OPACITY if kind == "envelope" else None,
             cast_shadow=False,
             receive_shadow=False,
         )

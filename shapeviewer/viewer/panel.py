@@ -62,6 +62,13 @@ LAYERS: tuple[Layer, ...] = (
         False,
         "Algorithm 1: observed points merged with the CNN output, smoothed, meshed (step 5b).",
     ),
+    Layer(
+        "envelope_mesh",
+        "Grasp envelope",
+        False,
+        "What the network thinks may be there (its 8 sample completions' mean above p = 0.3, wider than a "
+        "completion where it hedges, as in a vessel). Plan grasps on it (Grasps > Plan on: envelope).",
+    ),
     Layer("partial_mesh", "Partial baseline", False, "Baseline: marching cubes of the observed points alone."),
     Layer(
         "mirror_mesh",

@@ -17,14 +17,15 @@ from ..baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..camera import transform_points
 from ..capture import MAX_CAPTURE_POINTS, Capture, decimate
 from ..model import Completer
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
+from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh, ensure_samples
 from ..segment import Segment, Segmentation, segment_scene, world_frame
 
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
-MESH_KINDS = ("fast", "detailed", "partial", "mirror", "hull")
+MESH_KINDS = ("fast", "detailed", "envelope", "partial", "mirror", "hull")
 # What the panel calls the meshes made on request (the fast mesh comes with every completion).
 MESH_TITLES = {
     "detailed": "Detailed mesh",
+    "envelope": "Grasp envelope",
     "partial": "Partial baseline",
     "mirror": "Mirror baseline",
     "hull": "Hull baseline",
@@ -132,12 +133,16 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
 def make_mesh(
     kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float], completer: Completer
 ) -> trimesh.Trimesh:
-    """Camera-frame mesh ``kind`` (``detailed``, ``partial``, ``hull`` or ``mirror``) of completion
-    ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds); the detailed mesh asks
-    ``completer`` for ``c``'s sample completions if it has none yet."""
+    """Camera-frame mesh ``kind`` (``detailed``, ``envelope``, ``partial``, ``hull`` or ``mirror``)
+    of completion ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds); the detailed
+    mesh and the grasp envelope ask ``completer`` for ``c``'s sample completions if it has none yet."""
     points = scene.segments[c.segment_id].points_cam
     if kind == "detailed":
         return completion_detailed_mesh(c, points, completer, timings=steps)
+    if kind == "envelope":
+        from ..grasp.robust import envelope_mesh
+
+        return envelope_mesh(ensure_samples(c, completer), c.frame, np.eye(4))
     if kind == "partial":
         return partial_mesh(points)
     if kind == "hull":
