@@ -25,6 +25,8 @@ meshes are evaluated; the paper's one "Ours" is compared with Ours-detailed (:mo
 the options' ``robust``, the grasps of our meshes are also ranked by their robustness over the CNN's
 sample completions of the view (:mod:`grasp.robust`), which the completion stage saves: the same
 grasps, executed once, so Table V's best grasp compares the two rankings on the same completions.
+``Ours-envelope`` is a mesh grasped but not scored as a completion: the grasp envelope of those
+sample completions (:func:`grasp.robust.envelope_mesh`), written beside the view's meshes when grasped.
 Floating views run without a table in the *evaluation world frame* ``T_WORLD_CAM`` (the body frame
 of a level camera at the origin, so that the lift test's gravity, -z, points down the image);
 tabletop views in the table frame of the plane the segmentation found.

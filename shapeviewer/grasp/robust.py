@@ -13,6 +13,10 @@ grasps, so far, from their closed state on every sample in the dynamic lift test
 survive: after the planner's lift check, the share of samples the grasp lifts, then the share on
 which it still has force closure, then a lower quantile of its epsilon over the samples.
 
+:func:`envelope_mesh` is the mesh to plan on for this ranking: the samples' mean taken at a lower
+level than a completion's surface, so that grasps wrap what the object may be where the network
+hedges (a vessel's unseen wall, an occluded end), and the samples then choose among them.
+
 Why lift: the planner's ranking already puts the grasps that lift the completion first; the grasps
 that then still fail on the true object mostly close without force closure on it. Whether a grasp
 lifts the perturbed samples tells those apart from the good ones far better than whether it closes
