@@ -135,24 +135,24 @@ def _urdf_mesh(urdf: Path) -> tuple[Path, tuple]:
     return urdf.parent / m.group(1), scale
 
 
-def _novel(name: str) -> tuple[str, int] | None:
-    """``(kind, index)`` of a novel-kind name (``novel/ring_003``, :mod:`.novel`), else None. Novel
-    objects resolve to meshes but are never in :func:`catalogue`, so no training data holds them."""
-    from . import novel
+def _generators() -> dict:
+    """The procedural sources, by name prefix: their module (``KINDS``, ``make``, ``VERSION``) and
+    how many objects of each kind they make."""
+    from . import household, novel
 
-    m = re.fullmatch(r"novel/(\w+?)_(\d{3})", name)
-    if m and m.group(1) in novel.KINDS and int(m.group(2)) < novel.PER_KIND:
-        return m.group(1), int(m.group(2))
-    return None
+    return {"household": (household, HOUSEHOLD_PER_KIND), "novel": (novel, novel.PER_KIND)}
 
 
-def _household_path(name: str) -> str | None:
-    """``household:<kind>/<index>`` for a catalogue household name (``household/mug_003``), else None."""
-    from . import household
-
-    m = re.fullmatch(r"household/(\w+?)_(\d{3})", name)
-    if m and m.group(1) in household.KINDS and int(m.group(2)) < HOUSEHOLD_PER_KIND:
-        return f"household:{m.group(1)}/{int(m.group(2))}"
+def _generated(name: str) -> tuple[str, str, int] | None:
+    """``(source, kind, index)`` of a generated object's name (``household/mug_003``, or a novel
+    kind's ``novel/ring_003``, :mod:`.novel`), else None. Novel objects resolve to meshes but are
+    never in :func:`catalogue`, so no training data holds them."""
+    m = re.fullmatch(r"(household|novel)/(\w+?)_(\d{3})", name)
+    if m is None:
+        return None
+    module, per_kind = _generators()[m.group(1)]
+    if m.group(2) in module.KINDS and int(m.group(3)) < per_kind:
+        return m.group(1), m.group(2), int(m.group(3))
     return None
 
 
@@ -247,14 +247,9 @@ def _build(source: str, path: Path | str, scale: tuple) -> trimesh.Trimesh:
 
 def _cache_path(name: str) -> Path:
     stem = name.replace("/", "__")
-    if name.startswith("household/"):  # generated: keyed on the generator's version too
-        from . import household
-
-        stem = f"household-v{household.VERSION}__{name.partition('/')[2]}"
-    elif name.startswith("novel/"):
-        from . import novel
-
-        stem = f"novel-v{novel.VERSION}__{name.partition('/')[2]}"
+    source, _, short = name.partition("/")
+    if source in _generators():  # generated: keyed on the generator's version too
+        stem = f"{source}-v{_generators()[source][0].VERSION}__{short}"
     return cache_dir() / f"meshes_v{MESH_CACHE_VERSION}" / (stem + ".npz")
 
 
@@ -274,13 +269,10 @@ def load_mesh(name_or_entry: str | ObjectEntry) -> trimesh.Trimesh:
     if cp.exists():
         with np.load(cp) as z:
             return trimesh.Trimesh(z["vertices"], z["faces"], process=False)
-    hh, novel_kind = _household_path(name), _novel(name)
-    if hh is not None:
-        mesh = _build("household", hh, (1.0, 1.0, 1.0))
-    elif novel_kind is not None:
-        from . import novel
-
-        mesh = novel.make(*novel_kind)
+    generated = _generated(name)
+    if generated is not None:
+        source, kind, index = generated
+        mesh = _generators()[source][0].make(kind, index)
     else:
         srcs = {n: (p, s) for n, src, p, s in _sources() if src != "household"}
         if name not in srcs:
@@ -418,12 +410,10 @@ def shape_kind(name: str) -> str:
     ``random/*`` is ``random``; named pybullet objects are ``mug`` (pybullet/mug) or ``other``.
     """
     source, _, short = name.partition("/")
-    if source == "household":
+    if source in ("household", "novel"):
         return short.rsplit("_", 1)[0]
     if source == "ycb":
         return YCB_KIND.get(short, "other")
     if source == "random":
         return "random"
-    if source == "novel":
-        return short.rsplit("_", 1)[0]
     return "mug" if name == "pybullet/mug" else "other"
