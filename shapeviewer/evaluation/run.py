@@ -336,7 +336,8 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         "frame": "evaluation_world",
         "error": "",
     }
-    missing = [k for k in ("truth", method) if k not in record["files"] and k != ENVELOPE]
+    # The envelope is made from the view's sample completions below, not read like a completion.
+    missing = [k for k in ("truth",) + (() if method == ENVELOPE else (method,)) if k not in record["files"]]
     if missing:
         entry["error"] = f"no {' or '.join(missing)} mesh"
         return entry
@@ -405,6 +406,19 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
     return entry
 
 
+def load_samples(path: Path):
+    """A view's saved sample completions (:func:`records.samples_file`): ``(samples, frame, level)``,
+    the (n, 40, 40, 40) probabilities, their :class:`~shapeviewer.voxel.GridFrame` and the level the
+    network's meshes are taken at (files written before it was saved: ``MESH_LEVEL``)."""
+    from ..reconstruct import MESH_LEVEL
+    from ..voxel import GridFrame
+
+    with np.load(path) as saved:
+        frame = GridFrame(saved["center"], float(saved["voxel_size"]))
+        level = float(saved["mesh_level"]) if "mesh_level" in saved else MESH_LEVEL
+        return saved["samples"], frame, level
+
+
 def write_envelope(out_dir, record: dict) -> str:
     """Write a view's grasp envelope (:func:`grasp.robust.envelope_mesh` of its saved sample
     completions, camera frame) to ``out_dir`` and return its path there (:func:`records.envelope_file`).
@@ -414,13 +428,11 @@ def write_envelope(out_dir, record: dict) -> str:
         EmptyCompletionError: nothing in their mean answer is above the envelope's level.
     """
     from ..grasp.robust import envelope_mesh
-    from ..voxel import GridFrame
 
     stem = view_stem(record["object"], int(record["view"]))
-    with np.load(Path(out_dir) / samples_file(stem)) as saved:
-        mesh = envelope_mesh(saved["samples"], GridFrame(saved["center"], float(saved["voxel_size"])), np.eye(4))
+    samples, frame, _ = load_samples(Path(out_dir) / samples_file(stem))
     rel = envelope_file(stem)
-    mesh.export(Path(out_dir) / rel)
+    envelope_mesh(samples, frame, np.eye(4)).export(Path(out_dir) / rel)
     return rel
 
 
@@ -430,14 +442,9 @@ def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, t
     rank by it (0 first), as a grasp file's ``meta["robustness"]`` (:func:`records.grasp_rows`).
     ``grasps`` were planned on ``completion`` (the grasp world, metres), on the table if ``table``."""
     from ..grasp.robust import rank_robust, robustness, sample_meshes
-    from ..reconstruct import MESH_LEVEL
-    from ..voxel import GridFrame
 
-    with np.load(samples) as saved:
-        frame = GridFrame(saved["center"], float(saved["voxel_size"]))
-        level = float(saved["mesh_level"]) if "mesh_level" in saved else MESH_LEVEL
-        meshes = sample_meshes(saved["samples"], frame, T_world_cam, level=level)
-    scores = robustness(grasps, meshes, completion, table=table)
+    grids, frame, level = load_samples(samples)
+    scores = robustness(grasps, sample_meshes(grids, frame, T_world_cam, level=level), completion, table=table)
     rank = {i: k for k, i in enumerate(rank_robust(scores, [g.lift for g in grasps]))}
     return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]
 
