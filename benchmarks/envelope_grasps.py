@@ -25,23 +25,20 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
+from shares import add, new_shares, print_shares
 
 
 def view_outcomes(root: Path, file: Path, n_grasps: int, level: float) -> dict | None:
     """One view's best-grasp outcomes ({ranking: lifted the true object}), or None without the
     folder's robust Ours-detailed grasps."""
     from shapeviewer.evaluation.records import samples_file, view_stem
-    from shapeviewer.evaluation.run import grasp_meshes, plan_seed
+    from shapeviewer.evaluation.run import grasp_meshes, load_samples, plan_seed
     from shapeviewer.grasp.execute import execute_grasps
     from shapeviewer.grasp.plan import plan
     from shapeviewer.grasp.robust import envelope_mesh, rank_robust, robustness, sample_meshes
     from shapeviewer.grasp.serialize import grasps_from_json
-    from shapeviewer.reconstruct import MESH_LEVEL
-    from shapeviewer.voxel import GridFrame
 
     record = json.loads(file.read_text())
     entry = next((g for g in record.get("grasps", []) if g["method"] == "Ours-detailed"), None)
@@ -52,10 +49,8 @@ def view_outcomes(root: Path, file: Path, n_grasps: int, level: float) -> dict |
     if not ranks:
         return None
     completion, truth, T_world_cam, table = grasp_meshes(root, record, "Ours-detailed")
-    with np.load(root / samples_file(view_stem(record["object"], int(record["view"])))) as s:
-        frame = GridFrame(s["center"], float(s["voxel_size"]))
-        samples = s["samples"]
-        meshes = sample_meshes(samples, frame, T_world_cam, level=float(s.get("mesh_level", MESH_LEVEL)))
+    samples, frame, mesh_level = load_samples(root / samples_file(view_stem(record["object"], int(record["view"]))))
+    meshes = sample_meshes(samples, frame, T_world_cam, level=mesh_level)
     envelope = envelope_mesh(samples, frame, T_world_cam, level=level)
     seed = plan_seed(record["seed"], record["object"], int(record["view"]))
     grasps = plan(envelope, n_grasps=n_grasps, seed=seed, table=table).grasps
@@ -90,17 +85,13 @@ def main() -> None:
     jobs = [(args.results, f, args.n_grasps, level) for f in files]
     with mp.get_context("fork").Pool(args.processes) as pool:
         rows = [r for r in pool.starmap(view_outcomes, jobs, chunksize=1) if r is not None]
-    by: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))
+    shares = new_shares()
     for r in rows:
         for k, v in r.items():
             if k != "view_set":
-                by[k][r["view_set"]].append(v)
-                by[k]["all"].append(v)
-    sets = sorted({r["view_set"] for r in rows}) + ["all"]
+                add(shares, k, r["view_set"], v)
     print(f"best grasp's lift success, {len(rows)} views (envelope at p = {level})")
-    print(f"{'grasps, ranking':22s} " + " ".join(f"{s:>26s}" for s in sets))
-    for k, d in by.items():
-        print(f"{k:22s} " + " ".join(f"{100 * np.mean(d[s]):19.1f}% n={len(d[s]):3d}" for s in sets))
+    print_shares(shares, "grasps, ranking")
 
 
 if __name__ == "__main__":

@@ -27,10 +27,9 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
+from shares import add, new_shares, print_shares
 
 SAMPLES = 8  # copies of the true mesh, as many as the CNN's sample completions
 
@@ -72,19 +71,15 @@ def main() -> None:
         raise SystemExit(f"no views in {args.results}: run shapeviewer evaluate --out {args.results} first")
     budget = args.budget or None
     jobs = [(args.results, f, args.n_grasps, budget, not args.no_epsilon) for f in files]
-    by_set: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))
+    by_set = new_shares()
     with mp.get_context("fork").Pool(args.processes) as pool:
         for row in pool.starmap(ceiling, jobs, chunksize=1) if args.processes > 1 else (ceiling(*j) for j in jobs):
             print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
             for k, v in row.items():
                 if isinstance(v, bool):
-                    by_set[k][row["view_set"]].append(v)
-                    by_set[k]["all"].append(v)
-    sets = sorted({s for d in by_set.values() for s in d}, key=lambda s: (s == "all", s))
+                    add(by_set, k, row["view_set"], v)
     print(f"\nbest grasp lifted the true object ({len(files)} views, {args.n_grasps} grasps planned on the true mesh)")
-    print(f"{'ranking':12s} " + " ".join(f"{s:>24s}" for s in sets))
-    for k, d in by_set.items():
-        print(f"{k:12s} " + " ".join(f"{100 * np.mean(d[s]):17.1f}% n={len(d[s]):3d}" for s in sets))
+    print_shares(by_set, "ranking")
 
 
 if __name__ == "__main__":

@@ -29,10 +29,10 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from shares import add, new_shares, print_shares
 
 
 def rerank(root: Path, record: dict, method: str, grasps: list) -> int:
@@ -59,7 +59,7 @@ def main() -> None:
     from shapeviewer.grasp.robust import Robustness, rank_robust
     from shapeviewer.grasp.serialize import grasps_from_json
 
-    success: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    success = new_shares()
     views = []
     for root in args.results:
         files = sorted((root / "views").glob("*.json"))
@@ -86,18 +86,8 @@ def main() -> None:
         if now is not None:
             picks["robust now"] = now
         for name, i in picks.items():
-            ok = float(lifted[i]) if lifted else 0.0
-            for s in (record["view_set"], "all"):
-                success[name][s].append(ok)
-    sets = sorted({s for by_set in success.values() for s in by_set}, key=lambda s: (s == "all", s))
-    print(f"{'ranking':16s} " + " ".join(f"{s:>24s}" for s in sets))
-    for name, by_set in success.items():
-        print(
-            f"{name:16s} "
-            + " ".join(
-                f"{100 * np.mean(by_set[s]):17.1f}% n={len(by_set[s]):3d}" if by_set[s] else f"{'-':>24s}" for s in sets
-            )
-        )
+            add(success, name, record["view_set"], float(lifted[i]) if lifted else 0.0)
+    print_shares(success, "ranking")
 
 
 if __name__ == "__main__":
