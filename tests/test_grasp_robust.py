@@ -145,18 +145,21 @@ def test_the_envelope_keeps_what_the_samples_hedge_on():
     assert envelope.contains(surface.vertices[:50]).all()
 
 
-def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
+def _robust_evaluation(folder, methods: tuple[str, ...]):
+    """One paper view evaluated with a small grasp search, ranked by robustness: ``(options,
+    tables, object name, view, view stem)``."""
     views = ev.sample_views(1, seed=0)[:1]
     options = ev.GraspOptions(
-        methods=("Ours-fast",),
-        n_grasps=3,
-        settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8),
-        robust=True,
+        methods=methods, n_grasps=3, settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8), robust=True
     )
-    assert ev.run_views(tmp_path, views, workers=1, grasps=options, progress=False) == 1
-    tables = ev.write_tables(tmp_path, views, seed=0)
+    assert ev.run_views(folder, views, workers=1, grasps=options, progress=False) == 1
+    tables = ev.write_tables(folder, views, seed=0)
     name, view, _ = views[0]
-    stem = rec.view_stem(name, view)
+    return options, tables, name, view, rec.view_stem(name, view)
+
+
+def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
+    options, tables, name, view, stem = _robust_evaluation(tmp_path, ("Ours-fast",))
     with np.load(tmp_path / rec.samples_file(stem)) as saved:
         assert saved["samples"].shape == (8, 40, 40, 40) and float(saved["voxel_size"]) > 0
     (entry,) = rec.load_view(tmp_path, name, view)["grasps"]
@@ -185,21 +188,9 @@ def test_evaluate_grasps_the_envelope_of_the_samples(tmp_path):
     """``Ours-envelope``: the view's grasp envelope is written beside its meshes, closed and larger
     than the detailed completion, grasps are planned on it, executed on the true mesh and ranked
     by robustness, and Table V has its columns."""
-    import trimesh as tm
-
-    views = ev.sample_views(1, seed=0)[:1]
-    options = ev.GraspOptions(
-        methods=("Ours-detailed", rec.ENVELOPE),
-        n_grasps=3,
-        settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8),
-        robust=True,
-    )
-    assert ev.run_views(tmp_path, views, workers=1, grasps=options, progress=False) == 1
-    tables = ev.write_tables(tmp_path, views, seed=0)
-    name, view, _ = views[0]
-    stem = rec.view_stem(name, view)
-    envelope = tm.load(tmp_path / rec.envelope_file(stem), process=False)
-    detailed = tm.load(tmp_path / "meshes" / f"{stem}__Ours-detailed.ply", process=False)
+    _, tables, name, view, stem = _robust_evaluation(tmp_path, ("Ours-detailed", rec.ENVELOPE))
+    envelope = trimesh.load(tmp_path / rec.envelope_file(stem), process=False)
+    detailed = trimesh.load(tmp_path / "meshes" / f"{stem}__Ours-detailed.ply", process=False)
     assert envelope.is_watertight and envelope.volume > detailed.volume
     entry = {g["method"]: g for g in rec.load_view(tmp_path, name, view)["grasps"]}[rec.ENVELOPE]
     assert entry["error"] == "" and entry["robust"] and entry["n"] >= 1
