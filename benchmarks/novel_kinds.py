@@ -11,7 +11,8 @@ the support plane the segmentation found go to
 and the Hull (:func:`shapeviewer.baselines.hull_mesh`) are scored against the true mesh by J80
 (:func:`shapeviewer.metrics.sampled_jaccard`) and the mean symmetric surface distance (mm).
 
-    python benchmarks/novel_kinds.py [--per-kind 4] [--views 2] [--seed 0] [--input mask] [--processes 2]
+    python benchmarks/novel_kinds.py [--per-kind 4] [--views 2] [--seed 0] [--input mask] [--processes 2] \
+        [--weights PATH]
     python benchmarks/novel_kinds.py --objects holdout   # the same on the catalogue's holdout household objects
 
 Prints one line per view, then the means per kind and over all views, and how many views each
@@ -23,10 +24,19 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 from collections import defaultdict
+from functools import cache
 
 import numpy as np
 
 METHODS = ("Hull", "Ours-fast", "Ours-detailed")
+WEIGHTS: str | None = None  # the worker's CNN weights (None: the shipped model)
+
+
+@cache
+def _completer():
+    from shapeviewer.model import load_completer
+
+    return load_completer(WEIGHTS)
 
 
 def score(name: str, view: int, seed: int, source: str) -> dict | None:
@@ -45,8 +55,8 @@ def score(name: str, view: int, seed: int, source: str) -> dict | None:
         points = v.capture.points_cam.reshape(-1, 3)[v.capture.labels.reshape(-1) == 0]
     meshes = {
         "Hull": hull_mesh(points),
-        "Ours-fast": sv.complete(points, support_plane=v.plane_cam, mode="fast"),
-        "Ours-detailed": sv.complete(points, support_plane=v.plane_cam, mode="detailed"),
+        "Ours-fast": sv.complete(points, support_plane=v.plane_cam, mode="fast", completer=_completer()),
+        "Ours-detailed": sv.complete(points, support_plane=v.plane_cam, mode="detailed", completer=_completer()),
     }
     row = {"name": name, "view": view, "sensor": v.sensor, "watertight": all(m.is_watertight for m in meshes.values())}
     for method, mesh in meshes.items():
@@ -54,9 +64,11 @@ def score(name: str, view: int, seed: int, source: str) -> dict | None:
     return row
 
 
-def _init(threads: int) -> None:
+def _init(threads: int, weights: str | None) -> None:
     import torch
 
+    global WEIGHTS
+    WEIGHTS = weights
     torch.set_num_threads(threads)
 
 
@@ -75,6 +87,7 @@ def main() -> None:
         help="the novel kinds, or for comparison the catalogue's holdout household objects (the first of each kind)",
     )
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     args = ap.parse_args()
 
     from shapeviewer.evaluation.viewsets import TABLETOP_VIEW_OFFSET
@@ -93,7 +106,7 @@ def main() -> None:
         for _ in range(args.views)
     ]
     threads = max(1, (mp.cpu_count() or 1) // args.processes)
-    with mp.get_context("spawn").Pool(args.processes, initializer=_init, initargs=(threads,)) as pool:
+    with mp.get_context("spawn").Pool(args.processes, initializer=_init, initargs=(threads, args.weights)) as pool:
         rows = [r for r in pool.starmap(score, jobs, chunksize=1) if r is not None]
     by_kind: dict[str, list[dict]] = defaultdict(list)
     for r in rows:
