@@ -1,7 +1,8 @@
 """Plan Barrett hand grasps on a completed object, as the paper's robot did.
 
 Completes the largest object of a real capture (fast mesh), moves it into the table-aligned world
-frame (table top z = 0, z up) and plans grasps on it, best first by GraspIt's epsilon quality.
+frame (table top z = 0, z up) and plans grasps on it, best first: those that lift the completed
+object in the planner's pybullet check first, then by GraspIt's epsilon quality.
 
     python examples/plan_grasps.py [OUTPUT_FOLDER]
 """
@@ -31,8 +32,12 @@ if __name__ == "__main__":
     print(f"{len(result.grasps)} grasps from {stats.evaluations} candidates in {stats.seconds['total']:.1f} s")
     with open(out / "grasps.csv", "w", newline="") as f:
         rows = csv.writer(f)
-        rows.writerow(["rank", "epsilon", "volume", "force_closure", "x", "y", "z"])
+        rows.writerow(["rank", "lifted", "epsilon", "volume", "force_closure", "x", "y", "z"])
         for rank, g in enumerate(result.grasps, 1):
-            print(f"#{rank}: epsilon {g.epsilon:.4f}, volume {g.volume:.4f}, palm at {g.position.round(3)} m")
-            rows.writerow([rank, g.epsilon, g.volume, g.force_closure, *g.position])
+            lifted = g.lift is not None and g.lift.success
+            print(
+                f"#{rank}: {'lifts' if lifted else 'does not lift'} the object, epsilon {g.epsilon:.4f}, "
+                f"volume {g.volume:.4f}, palm at {g.position.round(3)} m"
+            )
+            rows.writerow([rank, lifted, g.epsilon, g.volume, g.force_closure, *g.position])
     print(f"wrote {out / 'object_world.ply'} and {out / 'grasps.csv'}")

@@ -82,9 +82,12 @@ def test_plan_grasps_prints_and_writes_the_best_grasps(tmp_path):
     with open(out / "grasps.csv") as f:
         rows = list(csv.DictReader(f))
     assert 1 <= len(rows) <= 3
-    printed = [float(e) for e in re.findall(r"^#\d+: epsilon (-?[\d.]+)", stdout, flags=re.M)]
-    assert printed == pytest.approx([float(r["epsilon"]) for r in rows], abs=1e-4)
-    assert printed == sorted(printed, reverse=True) and printed[0] > 0  # best first, force closure
+    printed = re.findall(r"^#\d+: (lifts|does not lift) the object, epsilon (-?[\d.]+)", stdout, flags=re.M)
+    assert [float(e) for _, e in printed] == pytest.approx([float(r["epsilon"]) for r in rows], abs=1e-4)
+    lifted = [r["lifted"] == "True" for r in rows]
+    assert [w == "lifts" for w, _ in printed] == lifted
+    # Best first: the planner's lift check holds the completed object, and those that lift come first.
+    assert lifted[0] and lifted == sorted(lifted, reverse=True)
     # Each palm is at the object, not somewhere else in the scene.
     for r in rows:
         palm = np.array([float(r[k]) for k in "xyz"])
