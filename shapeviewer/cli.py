@@ -457,7 +457,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="sphere: the paper's floating views; tabletop: the object on a table among neighbours, "
         "a robot's Kinect or RealSense, segmented by the app",
     )
-    s.add_argument("--objects", nargs="*", default=None, help="catalogue names (default: all)")
+    s.add_argument(
+        "--objects",
+        nargs="*",
+        default=None,
+        help="catalogue names, or generated ones it does not list (assembly/parts_000 ...); default: the catalogue",
+    )
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument("--workers", type=int, default=None)
     s.add_argument("--backend", default="process", choices=BACKENDS)
