@@ -15,8 +15,6 @@ x-y origin, one watertight body. ``assembly/parts_<index>`` names resolve throug
 
 from __future__ import annotations
 
-import hashlib
-
 import manifold3d as mf
 import numpy as np
 import trimesh
@@ -103,8 +101,7 @@ def make(kind: str, index: int) -> trimesh.Trimesh:
     on z = 0."""
     if kind not in KINDS:
         raise KeyError(f"unknown assembly kind {kind!r}; one of {', '.join(KINDS)}")
-    seed = [int(hashlib.sha1(f"assembly/{kind}".encode()).hexdigest()[:8], 16), int(index)]
-    return parts(np.random.default_rng(seed))
+    return parts(np.random.default_rng(S.seed(f"assembly/{kind}", index)))
 
 
 def names(count: int = PER_KIND) -> list[str]:

@@ -93,12 +93,10 @@ def model_split(name: str) -> str:
         return "holdout_model" if short in HOLDOUT_YCB else "train"
     if source == "random":
         return "holdout_model" if stable_percent(name) < HOLDOUT_RANDOM_PERCENT else "train"
-    if source == "household":
+    if source in ("household", "assembly"):  # the assemblies (:mod:`.assembly`) split as the household objects
         return "holdout_model" if stable_percent(name) < HOLDOUT_HOUSEHOLD_PERCENT else "train"
     if source == "novel":  # kinds no training data holds (:mod:`.novel`)
         return "holdout_model"
-    if source == "assembly":  # shapes of no kind (:mod:`.assembly`), split like the household objects
-        return "holdout_model" if stable_percent(name) < HOLDOUT_HOUSEHOLD_PERCENT else "train"
     return "train"
 
 

@@ -16,7 +16,6 @@ nozzles and tool heads point along +x.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable
 
 import manifold3d as mf
@@ -491,13 +490,8 @@ FAMILIES: dict[str, Callable[[np.random.Generator], trimesh.Trimesh]] = {
 KINDS: tuple[str, ...] = tuple(FAMILIES)
 
 
-def seed(kind: str, index: int) -> list[int]:
-    """The generator seed of object ``index`` of a family (stable across machines and Python runs)."""
-    return [int(hashlib.sha1(kind.encode()).hexdigest()[:8], 16), int(index)]
-
-
 def make(kind: str, index: int) -> trimesh.Trimesh:
     """Object ``index`` of family ``kind`` (one of :data:`KINDS`), deterministic; metres, z up, resting on z = 0."""
     if kind not in FAMILIES:
         raise KeyError(f"unknown household kind {kind!r}; one of {', '.join(KINDS)}")
-    return FAMILIES[kind](np.random.default_rng(seed(kind, index)))
+    return FAMILIES[kind](np.random.default_rng(S.seed(kind, index)))

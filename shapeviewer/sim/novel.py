@@ -13,7 +13,6 @@ watertight body.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable
 
 import manifold3d as mf
@@ -149,8 +148,7 @@ def make(kind: str, index: int) -> trimesh.Trimesh:
     resting on z = 0."""
     if kind not in FAMILIES:
         raise KeyError(f"unknown novel kind {kind!r}; one of {', '.join(KINDS)}")
-    seed = [int(hashlib.sha1(f"novel/{kind}".encode()).hexdigest()[:8], 16), int(index)]
-    return FAMILIES[kind](np.random.default_rng(seed))
+    return FAMILIES[kind](np.random.default_rng(S.seed(f"novel/{kind}", index)))
 
 
 def names(per_kind: int = PER_KIND) -> list[str]:

@@ -1,10 +1,11 @@
-"""manifold3d building blocks of the procedural household shapes (:mod:`.household`): revolved
-profiles, thin-walled vessels, rounded boxes, swept tubes, handles, smooth warps, and the final check
-that turns a body into a placed trimesh. All lengths in metres; profiles are (r, z) in the object
-frame (z up)."""
+"""manifold3d building blocks of the procedural shapes (:mod:`.household`, :mod:`.novel`,
+:mod:`.assembly`): revolved profiles, thin-walled vessels, rounded boxes, swept tubes, handles, smooth
+warps, the final check that turns a body into a placed trimesh, and each object's generator seed. All
+lengths in metres; profiles are (r, z) in the object frame (z up)."""
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from itertools import pairwise
 
@@ -17,6 +18,12 @@ SEGMENTS = 64  # circle resolution of revolved bodies
 MIN_FACES, MAX_FACES = 1000, 30000
 
 Array = np.ndarray
+
+
+def seed(key: str, index: int) -> list[int]:
+    """The generator seed of object ``index`` of a family named ``key`` (stable across machines and
+    Python runs)."""
+    return [int(hashlib.sha1(key.encode()).hexdigest()[:8], 16), int(index)]
 
 
 def section(points: Array) -> mf.CrossSection:
