@@ -56,7 +56,7 @@ def close_segments():
     noise model: the object's pixels only (camera frame, metres), the table's plane exact."""
     import numpy as np
 
-    from shapeviewer.camera import Intrinsics, RaycastRenderer, RealSenseNoise, backproject, look_at
+    from shapeviewer.camera import Intrinsics, RaycastRenderer, RealSenseNoise, backproject_valid, look_at
     from shapeviewer.sim import catalogue
 
     intr = Intrinsics(1280, 720, 910.0, 910.0, 640.0, 360.0)
@@ -67,8 +67,7 @@ def close_segments():
             eye = np.array([distance * 0.7, 0.1, distance * 0.7])
             T_world_cam = look_at(eye, [0.0, 0.0, mesh.bounds[1, 2] / 2])
             depth, _ = RaycastRenderer([mesh]).render(intr, T_world_cam)
-            points = backproject(RealSenseNoise().apply(depth, 0), intr).reshape(-1, 3)
-            points = points[np.isfinite(points).all(axis=1) & (points[:, 2] > 0)]
+            points = backproject_valid(RealSenseNoise().apply(depth, 0), intr)
             T_cam_world = np.linalg.inv(T_world_cam)
             normal, origin = T_cam_world[:3, 2], T_cam_world[:3, 3]
             yield f"{name} at {distance} m", points, np.r_[normal, -normal @ origin]
