@@ -34,12 +34,13 @@ def test_empty_output_is_a_clear_error():
         fast_mesh(np.zeros((40, 40, 40), np.float32), GridFrame(np.zeros(3), 0.01))
 
 
-def _rendered_view(mesh, T_cam_obj, seed=0):
+def _rendered_view(mesh, T_cam_obj, seed=0, intr=None, noise=None):
+    """Observed points (camera frame) of ``mesh`` posed at ``T_cam_obj``; the Kinect by default."""
     from shapeviewer.camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
 
-    intr = Intrinsics.kinect()
+    intr = intr or Intrinsics.kinect()
     depth, _ = RaycastRenderer([mesh]).render(intr, np.linalg.inv(T_cam_obj))
-    return backproject_valid(KinectNoise().apply(depth, seed), intr)
+    return backproject_valid((noise or KinectNoise()).apply(depth, seed), intr)
 
 
 def _box_view(extents, angle, axis, position, seed=0):
@@ -99,7 +100,7 @@ def test_a_dense_close_cloud_merges_at_a_bounded_resolution_and_stays_accurate()
     ratio stops at MAX_UPSAMPLE_RATIO (else a 300^3 merge grid), and the mesh still follows the box."""
     import trimesh
 
-    from shapeviewer.camera import Intrinsics, RaycastRenderer, RealSenseNoise, backproject_valid
+    from shapeviewer.camera import Intrinsics, RealSenseNoise
     from shapeviewer.metrics import hausdorff
     from shapeviewer.reconstruct import MAX_UPSAMPLE_RATIO, detailed_mesh
     from shapeviewer.voxel import partial_to_grid, solid_fraction, solid_grid
@@ -108,8 +109,7 @@ def test_a_dense_close_cloud_merges_at_a_bounded_resolution_and_stays_accurate()
     T = trimesh.transformations.rotation_matrix(0.6, [1, 1, 0])
     T[:3, 3] = [0.0, 0.0, 0.3]
     intr = Intrinsics(1280, 720, 910.0, 910.0, 640.0, 360.0)
-    depth, _ = RaycastRenderer([box]).render(intr, np.linalg.inv(T))
-    pts = backproject_valid(RealSenseNoise().apply(depth, 0), intr)
+    pts = _rendered_view(box, T, intr=intr, noise=RealSenseNoise())
     assert len(pts) > 100_000
     frame = partial_to_grid(pts)[1]
     # A perfect CNN of the shipped kind: how much of each voxel the box fills (the soft label).
