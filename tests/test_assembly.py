@@ -24,10 +24,21 @@ def test_assemblies_are_placed_single_solids_of_varied_shape():
     np.testing.assert_array_equal(assembly.make("parts", 3).vertices, meshes[3].vertices)  # deterministic
 
 
+def test_hollow_assemblies_are_open_thin_walled_vessels():
+    for i in range(12):
+        m = assembly.make("hollow", i)
+        # One shell (a cavity closed inside would be a second one) holding far less than its hull: the
+        # cavity is open to the outside, as a vessel's is.
+        assert m.is_watertight and len(m.split(only_watertight=False)) == 1
+        assert m.volume < 0.8 * m.convex_hull.volume
+        assert assembly.SIZE[0] - 1e-6 <= m.extents.max() <= assembly.SIZE[1] + 1e-6
+
+
 def test_assemblies_resolve_by_name_but_are_not_listed():
     assert not any(e.name.startswith("assembly/") for e in catalogue.catalogue())
     name = "assembly/parts_007"
     assert catalogue.shape_kind(name) == "parts"
+    assert catalogue.shape_kind("assembly/hollow_007") == "hollow"
     np.testing.assert_array_equal(catalogue.load_mesh(name).faces, assembly.make("parts", 7).faces)
     splits = [catalogue.model_split(n) for n in assembly.names()]
     assert 0.05 < splits.count("holdout_model") / len(splits) < 0.3  # validation models, as for household

@@ -4,13 +4,16 @@ The catalogue's objects come in kinds (cans, mugs, drills...); a robot meets obj
 These are unions of 2-4 primitives (rounded boxes, cylinders standing or lying, ellipsoids, frustums,
 bent rods), each touching the ones before it, sometimes with an open cavity cut into the top (a
 thin-walled hollow) or a hole through the body. They teach the completion network shapes in general
-(parts joined at angles, overhangs, hollows) rather than one more kind, and are never in the
-catalogue's list: training data names them (``shapeviewer generate --objects $(python -c ...)``, see
-the model card), and the evaluation, which draws objects kind by kind from the catalogue, is unchanged.
+(parts joined at angles, overhangs, hollows) rather than one more kind. Two kinds: ``parts`` (the
+first part hollow in ``HOLLOW_SHARE`` of them) and ``hollow`` (always, with smaller parts attached
+outside it: vessels of no particular kind, whose unseen walls the network finds hardest). They are
+never in the catalogue's list: training data names them (``shapeviewer generate --objects $(python
+-c ...)``, see the model card), and the evaluation, which draws objects kind by kind from the
+catalogue, is unchanged.
 :mod:`.novel`'s kinds stay out of training and measure what they generalise to.
 
 Conventions as in :mod:`.household`: metres, z up, lowest point at z = 0, bounding box centred on the
-x-y origin, one watertight body. ``assembly/parts_<index>`` names resolve through the catalogue.
+x-y origin, one watertight body. ``assembly/<kind>_<index>`` names resolve through the catalogue.
 """
 
 from __future__ import annotations
@@ -21,9 +24,9 @@ import trimesh
 
 from . import solids as S
 
-VERSION = 1  # bump when the family changes shape (mesh caches key on it)
-PER_KIND = 400  # assembly/parts_000 .. _399
-KINDS: tuple[str, ...] = ("parts",)
+VERSION = 2  # bump when the family changes shape (mesh caches key on it)
+PER_KIND = 1000  # assembly/parts_000 .. _999
+KINDS: tuple[str, ...] = ("parts", "hollow")
 SIZE = (0.06, 0.26)  # m: the assembly's largest side, drawn uniformly
 HOLLOW_SHARE = 0.3  # assemblies whose first part is hollow, open at one end
 HOLE_SHARE = 0.15  # assemblies with a hole through them
@@ -49,7 +52,7 @@ def _primitive(rng: np.random.Generator, hollow: bool = False) -> mf.Manifold:
         m = S.tube([[-c, 0.0, 0.0], bend * 0.5, [c, bend[1], 0.0]], r)
     if hollow:
         # A convex part scaled about its centre stays inside it: the cavity is that copy's top part,
-        # opened by a copy of it raised out through the top face.
+        # swept up out through the top face (the hull of it and a raised copy, as it is convex).
         lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
         size = hi - lo
         wall = float(np.min(size)) * rng.uniform(0.06, 0.15)
@@ -57,13 +60,14 @@ def _primitive(rng: np.random.Generator, hollow: bool = False) -> mf.Manifold:
         depth = size[2] * rng.uniform(0.5, 0.85)
         keep = mf.Manifold.cube(tuple(size * 2), center=True).translate((0.0, 0.0, hi[2] - depth + size[2]))
         cavity = inner ^ keep
-        m = m - cavity - cavity.translate((0.0, 0.0, size[2]))
+        m = m - (cavity + cavity.translate((0.0, 0.0, size[2]))).hull()
     return m.rotate(tuple(rng.uniform(0.0, 360.0, 3)))
 
 
-def _attach(body: mf.Manifold, part: mf.Manifold, rng: np.random.Generator) -> mf.Manifold:
-    """``part`` moved so that it overlaps ``body`` near a random point of ``body``'s surface."""
-    mesh = body.to_mesh()
+def _attach(body: mf.Manifold, part: mf.Manifold, rng: np.random.Generator, outside: bool = False) -> mf.Manifold:
+    """``part`` moved so that it overlaps ``body`` near a random point of ``body``'s surface (of its
+    convex hull if ``outside``, so that it does not fill a cavity)."""
+    mesh = (body.hull() if outside else body).to_mesh()
     verts = np.asarray(mesh.vert_properties)[:, :3]
     anchor = verts[rng.integers(len(verts))]
     lo, hi = np.asarray(part.bounding_box()).reshape(2, 3)
@@ -80,6 +84,25 @@ def parts(rng: np.random.Generator) -> trimesh.Trimesh:
     body = _primitive(rng, hollow=rng.random() < HOLLOW_SHARE)
     for _ in range(int(rng.integers(1, 4))):
         body = _attach(body, _primitive(rng), rng)
+    return _finish(body, rng)
+
+
+def hollow(rng: np.random.Generator) -> trimesh.Trimesh:
+    """A thin-walled hollow open at one end, with 0-2 smaller parts (handles, knobs, feet) attached;
+    sometimes pierced; 6-26 cm. Vessels of no particular kind: their unseen walls are what the
+    network finds hardest."""
+    body = _primitive(rng, hollow=True)
+    side = float(np.min(np.array([-1.0, 1.0]) @ np.asarray(body.bounding_box()).reshape(2, 3)))
+    for _ in range(int(rng.integers(0, 3))):
+        part = _primitive(rng)
+        extent = float(np.max(np.array([-1.0, 1.0]) @ np.asarray(part.bounding_box()).reshape(2, 3)))
+        part = part.scale((rng.uniform(0.3, 0.8) * side / extent,) * 3)  # smaller than the hollow
+        body = _attach(body, part, rng, outside=True)
+    return _finish(body, rng)
+
+
+def _finish(body: mf.Manifold, rng: np.random.Generator) -> trimesh.Trimesh:
+    """``body`` centred and scaled to ``SIZE``, maybe pierced, as one watertight mesh on z = 0."""
     lo, hi = np.asarray(body.bounding_box()).reshape(2, 3)
     body = body.translate(tuple(-(lo + hi) / 2)).scale((float(rng.uniform(*SIZE)) / float(np.max(hi - lo)),) * 3)
     size = np.array([-1.0, 1.0]) @ np.asarray(body.bounding_box()).reshape(2, 3)
@@ -96,14 +119,17 @@ def _largest(m: mf.Manifold) -> mf.Manifold:
     return max(bodies, key=lambda b: b.volume()) if len(bodies) > 1 else m
 
 
+_MAKERS = {"parts": parts, "hollow": hollow}
+
+
 def make(kind: str, index: int) -> trimesh.Trimesh:
-    """Assembly ``index`` (``kind`` is ``parts``, the one kind), deterministic; metres, z up, resting
-    on z = 0."""
+    """Assembly ``index`` of ``kind`` (:func:`parts` or :func:`hollow`), deterministic; metres, z up,
+    resting on z = 0."""
     if kind not in KINDS:
         raise KeyError(f"unknown assembly kind {kind!r}; one of {', '.join(KINDS)}")
-    return parts(np.random.default_rng(S.seed(f"assembly/{kind}", index)))
+    return _MAKERS[kind](np.random.default_rng(S.seed(f"assembly/{kind}", index)))
 
 
-def names(count: int = PER_KIND) -> list[str]:
-    """The catalogue-style names ``assembly/parts_<index>`` of the first ``count`` assemblies."""
-    return [f"assembly/parts_{i:03d}" for i in range(count)]
+def names(count: int = PER_KIND, kind: str = "parts") -> list[str]:
+    """The catalogue-style names ``assembly/<kind>_<index>`` of the first ``count`` assemblies of ``kind``."""
+    return [f"assembly/{kind}_{i:03d}" for i in range(count)]
