@@ -6,7 +6,7 @@ shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
 shapeviewer objects
 shapeviewer generate --out DIR [--views N] [--backend process|ray]
 shapeviewer train --data DIR --run DIR [--steps N]
-shapeviewer evaluate-grids --data DIR [--weights PATH]
+shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...]
 shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
                      [--workers N] [--backend process|ray]
                      [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]
@@ -330,10 +330,27 @@ def cmd_evaluate_grids(args) -> int:
 
     completer = load_completer(args.weights)
     sets = load_grid_sets(args.data)
+    if args.kinds:
+        import numpy as np
+
+        from .sim.catalogue import shape_kind
+
+        keep = lambda gs: np.flatnonzero([shape_kind(str(o)) in args.kinds for o in gs.objects])  # noqa: E731
+        sets = {s: gs.subset(keep(gs)) for s, gs in sets.items()}
+        if not any(len(gs) for gs in sets.values()):
+            raise ValueError(f"no views of kinds {', '.join(args.kinds)} in {', '.join(args.data)}")
     r = evaluate_grids(completer, sets, max_views=args.views, seed=args.seed, label=completer.label)
     print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
     for s, v in r.items():
         print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")
+    if args.by_kind:
+        names = list(r)
+        print(f"\n{'kind':15s}" + "".join(f" {s:>15s}" for s in names) + "   (Jaccard, views)")
+        for kind in sorted({k for v in r.values() for k in v["by_kind"]}):
+            cells = [r[s]["by_kind"].get(kind) for s in names]
+            print(
+                f"{kind:15s}" + "".join(f" {c['jaccard']:9.3f} {c['views']:5d}" if c else f" {'-':>15s}" for c in cells)
+            )
     if args.json:
         Path(args.json).write_text(json.dumps(r, indent=1))
     if args.card:
@@ -513,6 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json", default=None, help="also write the figures to this file")
     s.add_argument("--card", default=None, help="write a model card (markdown) with these figures")
+    s.add_argument("--by-kind", action="store_true", help="also print the Jaccard per shape kind")
+    s.add_argument("--kinds", nargs="+", default=None, help="only views of these shape kinds (mug bowl ...)")
     s.set_defaults(func=cmd_evaluate_grids)
 
     s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")

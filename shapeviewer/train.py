@@ -218,7 +218,8 @@ def evaluate_grids(
     label: str = "solid",
 ) -> dict:
     """Mean Jaccard at 40^3 (threshold 0.5) per set, for the network and for the input alone, against
-    the ground truth of ``label`` (:meth:`GridSet.truth`: the one the network was trained on).
+    the ground truth of ``label`` (:meth:`GridSet.truth`: the one the network was trained on), and the
+    network's per shape kind (``by_kind``: kind -> {"jaccard", "views"}, :func:`catalogue.shape_kind`).
 
     Uses a seeded sample of at most ``max_views`` views per set.
     """
@@ -240,10 +241,16 @@ def evaluate_grids(
             p = completer.predict(x, context=ctx)
             js.append(jaccard_grids(p > 0.5, y))
             js_in.append(jaccard_grids(x, y))
+        jac = np.concatenate(js)
+        kinds = np.array([catalogue.shape_kind(str(o)) for o in gs.objects[idx]])
         out[s] = {
-            "jaccard": float(np.concatenate(js).mean()),
+            "jaccard": float(jac.mean()),
             "input_jaccard": float(np.concatenate(js_in).mean()),
             "views": int(len(idx)),
+            "by_kind": {
+                k: {"jaccard": float(jac[kinds == k].mean()), "views": int((kinds == k).sum())}
+                for k in sorted(set(kinds.tolist()))
+            },
         }
     return out
 

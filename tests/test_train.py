@@ -163,3 +163,24 @@ def test_shipped_weights_beat_the_input_alone(tiny_data):
     assert r["holdout_model"]["views"] >= 4  # the mustard bottle is a holdout model
     for s, v in r.items():
         assert v["jaccard"] > v["input_jaccard"] + 0.2, s
+
+
+def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
+    from shapeviewer.cli import main
+
+    r = evaluate_grids(load_completer(), load_grid_sets(tiny_data), max_views=50)
+    for v in r.values():  # every view counted once, under its object's kind
+        assert sum(k["views"] for k in v["by_kind"].values()) == v["views"]
+        assert (
+            min(k["jaccard"] for k in v["by_kind"].values())
+            <= v["jaccard"]
+            <= max(k["jaccard"] for k in v["by_kind"].values())
+        )
+    assert set(r["training_view"]["by_kind"]) == {"mug", "random"}  # the mustard bottle is a holdout model
+    # The command line keeps the kinds asked for and prints a row per kind.
+    assert main(["evaluate-grids", "--data", str(tiny_data), "--views", "50", "--kinds", "mug", "--by-kind"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0] for line in out.splitlines()[1:] if line.strip()}
+    assert "mug" in rows and not rows & {"bottle", "random"}
+    assert main(["evaluate-grids", "--data", str(tiny_data), "--kinds", "teapot"]) != 0
+    assert "no views of kinds teapot" in capsys.readouterr().err
