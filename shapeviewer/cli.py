@@ -6,6 +6,7 @@ shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
 shapeviewer objects
 shapeviewer generate --out DIR [--views N] [--backend process|ray]
 shapeviewer train --data DIR --run DIR [--steps N]
+shapeviewer average A.pt B.pt --out C.pt
 shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...]
 shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
                      [--workers N] [--backend process|ray]
@@ -324,6 +325,14 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_average(args) -> int:
+    from .train import average_weights
+
+    average_weights(args.weights, args.out, note=args.note)
+    print(f"mean of {len(args.weights)} weights files -> {args.out}")
+    return 0
+
+
 def cmd_evaluate_grids(args) -> int:
     from .model import load_completer
     from .train import evaluate_grids, load_grid_sets
@@ -522,6 +531,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("average", help="the parameter-wise mean of weights files of one network -> a weights file")
+    s.add_argument("weights", nargs="+", help="two or more weights files (.pt) of the same architecture")
+    s.add_argument("--out", required=True)
+    s.add_argument("--note", default=None, help="how the weights were trained (kept in the file's meta)")
+    s.set_defaults(func=cmd_average)
 
     s = sub.add_parser("evaluate-grids", help="Jaccard at 40^3 on the three evaluation sets")
     s.add_argument("--data", required=True, nargs="+")

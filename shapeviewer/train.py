@@ -422,6 +422,40 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
     return result
 
 
+def average_weights(paths: list[str | Path], out: str | Path, *, note: str | None = None) -> dict:
+    """Write to ``out`` the parameter-wise mean of weights files of one architecture; returns its meta.
+
+    Averaging a fine-tuned network with the one it started from (Wortsman et al., "Robust
+    fine-tuning of zero-shot models", 2022) keeps much of what the fine-tune learnt while staying
+    close to what the start already did well. The meta is the last file's, with ``averaged_from``
+    (the files' names) and ``note`` as its ``schedule`` when given.
+
+    Raises:
+        ValueError: fewer than two files, or files of different architectures or shapes.
+    """
+    if len(paths) < 2:
+        raise ValueError("average at least two weights files")
+    states = [torch.load(p, map_location="cpu", weights_only=True) for p in paths]
+    first = states[0]
+    for p, st in zip(paths[1:], states[1:], strict=True):
+        same = st["arch"] == first["arch"] and st["state_dict"].keys() == first["state_dict"].keys()
+        if not same or any(v.shape != first["state_dict"][k].shape for k, v in st["state_dict"].items()):
+            raise ValueError(f"{p} is not the same network as {paths[0]} (architecture or shapes differ)")
+    avg = {}
+    for k, v in first["state_dict"].items():
+        if v.is_floating_point():
+            avg[k] = torch.stack([st["state_dict"][k].float() for st in states]).mean(0).to(v.dtype)
+        else:  # counters such as BatchNorm's batches seen: the last file's
+            avg[k] = states[-1]["state_dict"][k]
+    meta = {**states[-1].get("meta", {}), "averaged_from": [Path(p).name for p in paths]}
+    if note:
+        meta["schedule"] = note
+    net = build(first["arch"], **meta.get("arch_kwargs", {}))
+    net.load_state_dict(avg)
+    save_weights(out, net, first["arch"], meta)
+    return meta
+
+
 def _truncate_log(log_csv: Path, step: int) -> None:
     """Drop log rows written after the checkpoint a run resumes from (they will be redone)."""
     if not log_csv.exists():

@@ -184,3 +184,28 @@ def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
     assert "mug" in rows and not rows & {"bottle", "random"}
     assert main(["evaluate-grids", "--data", str(tiny_data), "--kinds", "teapot"]) != 0
     assert "no views of kinds teapot" in capsys.readouterr().err
+
+
+def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys):
+    from shapeviewer.cli import main
+    from shapeviewer.model import build, save_weights
+    from shapeviewer.train import average_weights
+
+    nets = []
+    for seed in (0, 1):
+        torch.manual_seed(seed)
+        nets.append(build("unet3d"))
+        save_weights(tmp_path / f"{seed}.pt", nets[-1], "unet3d", {"label": "fraction", "steps": seed})
+    assert main(["average", str(tmp_path / "0.pt"), str(tmp_path / "1.pt"), "--out", str(tmp_path / "m.pt")]) == 0
+    c = load_completer(tmp_path / "m.pt")
+    assert c.meta["averaged_from"] == ["0.pt", "1.pt"] and c.meta["label"] == "fraction"
+    mean = torch.load(tmp_path / "m.pt", weights_only=True)["state_dict"]
+    for k, v in nets[0].state_dict().items():
+        if v.is_floating_point():
+            torch.testing.assert_close(mean[k], (v + nets[1].state_dict()[k]) / 2)
+    # A network of another width cannot be averaged with these, and one file is not an average.
+    save_weights(tmp_path / "wide.pt", build("unet3d", width=24), "unet3d", {})
+    with pytest.raises(ValueError, match="not the same network"):
+        average_weights([tmp_path / "0.pt", tmp_path / "wide.pt"], tmp_path / "x.pt")
+    assert main(["average", str(tmp_path / "0.pt"), "--out", str(tmp_path / "x.pt")]) != 0
+    assert "at least two" in capsys.readouterr().err and not (tmp_path / "x.pt").exists()
