@@ -427,8 +427,8 @@ def average_weights(paths: list[str | Path], out: str | Path, *, note: str | Non
 
     Averaging a fine-tuned network with the one it started from (Wortsman et al., "Robust
     fine-tuning of zero-shot models", 2022) keeps much of what the fine-tune learnt while staying
-    close to what the start already did well. The meta is the last file's, with ``averaged_from``
-    (the files' names) and ``note`` as its ``schedule`` when given.
+    close to what the start already did well. The meta is the last file's without its evaluation,
+    with ``averaged_from`` (the files' names) and ``note`` as its ``schedule`` when given.
 
     Raises:
         ValueError: fewer than two files, or files of different architectures or shapes.
@@ -447,7 +447,9 @@ def average_weights(paths: list[str | Path], out: str | Path, *, note: str | Non
             avg[k] = torch.stack([st["state_dict"][k].float() for st in states]).mean(0).to(v.dtype)
         else:  # counters such as BatchNorm's batches seen: the last file's
             avg[k] = states[-1]["state_dict"][k]
-    meta = {**states[-1].get("meta", {}), "averaged_from": [Path(p).name for p in paths]}
+    # The last file's evaluation was of that network, not of the mean: it is left out.
+    meta = {k: v for k, v in states[-1].get("meta", {}).items() if k != "eval"}
+    meta["averaged_from"] = [Path(p).name for p in paths]
     if note:
         meta["schedule"] = note
     net = build(first["arch"], **meta.get("arch_kwargs", {}))

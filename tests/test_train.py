@@ -195,10 +195,10 @@ def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys
     for seed in (0, 1):
         torch.manual_seed(seed)
         nets.append(build("unet3d"))
-        save_weights(tmp_path / f"{seed}.pt", nets[-1], "unet3d", {"label": "fraction", "steps": seed})
+        save_weights(tmp_path / f"{seed}.pt", nets[-1], "unet3d", {"label": "fraction", "steps": seed + 1, "eval": {}})
     assert main(["average", str(tmp_path / "0.pt"), str(tmp_path / "1.pt"), "--out", str(tmp_path / "m.pt")]) == 0
     c = load_completer(tmp_path / "m.pt")
-    assert c.meta["averaged_from"] == ["0.pt", "1.pt"] and c.meta["label"] == "fraction"
+    assert c.meta["averaged_from"] == ["0.pt", "1.pt"] and c.meta["label"] == "fraction" and "eval" not in c.meta
     mean = torch.load(tmp_path / "m.pt", weights_only=True)["state_dict"]
     for k, v in nets[0].state_dict().items():
         if v.is_floating_point():

@@ -254,6 +254,8 @@ def test_model_panel_says_whether_weights_are_trained(app):
     assert warning in model_markdown("unet3d", "untrained", False, {})
     shown = model_markdown("unet3d", "unet3d.pt", True, {"steps": 1000, "eval": {"holdout_view": {"jaccard": 0.74}}})
     assert warning not in shown and "1,000 training steps" in shown and "holdout view 0.74" in shown
+    averaged = model_markdown("unet3d", "unet3d.pt", True, {"steps": 3000, "averaged_from": ["a.pt", "b.pt"]})
+    assert "the mean of 2 weights files" in averaged
     assert (warning in app.panel.model.content) == (not app.res.completer.trained)
 
 

@@ -272,6 +272,8 @@ def model_markdown(arch: str, source: str, trained: bool, meta: dict) -> str:
     lines = [f"**{arch}** · weights: `{source}`"]
     if trained:
         facts = [f"{meta['steps']:,} training steps"] if "steps" in meta else []
+        if meta.get("averaged_from"):
+            facts.append(f"the mean of {len(meta['averaged_from'])} weights files (`shapeviewer average`)")
         jaccard = [
             f"{name.replace('_', ' ')} {v['jaccard']:.2f}"
             for name, v in meta.get("eval", {}).items()
