@@ -344,8 +344,10 @@ def cmd_evaluate_grids(args) -> int:
 
         from .sim.catalogue import shape_kind
 
-        keep = lambda gs: np.flatnonzero([shape_kind(str(o)) in args.kinds for o in gs.objects])  # noqa: E731
-        sets = {s: gs.subset(keep(gs)) for s, gs in sets.items()}
+        sets = {
+            s: gs.subset(np.flatnonzero([shape_kind(str(o)) in args.kinds for o in gs.objects]))
+            for s, gs in sets.items()
+        }
         if not any(len(gs) for gs in sets.values()):
             raise ValueError(f"no views of kinds {', '.join(args.kinds)} in {', '.join(args.data)}")
     r = evaluate_grids(completer, sets, max_views=args.views, seed=args.seed, label=completer.label)

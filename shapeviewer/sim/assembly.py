@@ -53,7 +53,7 @@ def _primitive(rng: np.random.Generator, hollow: bool = False) -> mf.Manifold:
     if hollow:
         # A convex part scaled about its centre stays inside it: the cavity is that copy's top part,
         # swept up out through the top face (the hull of it and a raised copy, as it is convex).
-        lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
+        lo, hi = S.bounds(m)
         size = hi - lo
         wall = float(np.min(size)) * rng.uniform(0.06, 0.15)
         inner = m.scale(tuple(np.maximum(1.0 - 2.0 * wall / size, 0.1)))
@@ -70,10 +70,10 @@ def _attach(body: mf.Manifold, part: mf.Manifold, rng: np.random.Generator, outs
     mesh = (body.hull() if outside else body).to_mesh()
     verts = np.asarray(mesh.vert_properties)[:, :3]
     anchor = verts[rng.integers(len(verts))]
-    lo, hi = np.asarray(part.bounding_box()).reshape(2, 3)
+    lo, hi = S.bounds(part)
     centre = (lo + hi) / 2
     # Sink the part's centre a quarter of its size into the body, so that the two always overlap.
-    inward = np.asarray(body.bounding_box()).reshape(2, 3).mean(0) - anchor
+    inward = S.bounds(body).mean(0) - anchor
     inward /= max(np.linalg.norm(inward), 1e-9)
     shift = anchor + inward * 0.25 * float(np.min(hi - lo)) - centre
     return body + part.translate(tuple(shift))
@@ -92,10 +92,10 @@ def hollow(rng: np.random.Generator) -> trimesh.Trimesh:
     sometimes pierced; 6-26 cm. Vessels of no particular kind: their unseen walls are what the
     network finds hardest."""
     body = _primitive(rng, hollow=True)
-    side = float(np.min(np.array([-1.0, 1.0]) @ np.asarray(body.bounding_box()).reshape(2, 3)))
+    side = float(np.ptp(S.bounds(body), axis=0).min())
     for _ in range(int(rng.integers(0, 3))):
         part = _primitive(rng)
-        extent = float(np.max(np.array([-1.0, 1.0]) @ np.asarray(part.bounding_box()).reshape(2, 3)))
+        extent = float(np.ptp(S.bounds(part), axis=0).max())
         part = part.scale((rng.uniform(0.3, 0.8) * side / extent,) * 3)  # smaller than the hollow
         body = _attach(body, part, rng, outside=True)
     return _finish(body, rng)
@@ -103,9 +103,9 @@ def hollow(rng: np.random.Generator) -> trimesh.Trimesh:
 
 def _finish(body: mf.Manifold, rng: np.random.Generator) -> trimesh.Trimesh:
     """``body`` centred and scaled to ``SIZE``, maybe pierced, as one watertight mesh on z = 0."""
-    lo, hi = np.asarray(body.bounding_box()).reshape(2, 3)
+    lo, hi = S.bounds(body)
     body = body.translate(tuple(-(lo + hi) / 2)).scale((float(rng.uniform(*SIZE)) / float(np.max(hi - lo)),) * 3)
-    size = np.array([-1.0, 1.0]) @ np.asarray(body.bounding_box()).reshape(2, 3)
+    size = np.ptp(S.bounds(body), axis=0)
     if rng.random() < HOLE_SHARE:  # a hole through the body along a random horizontal axis
         r = float(np.min(size)) * rng.uniform(0.1, 0.25)
         hole = mf.Manifold.cylinder(float(np.max(size)) * 2, r, r, 32, center=True)

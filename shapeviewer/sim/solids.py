@@ -198,10 +198,15 @@ def handle(
     return sweep(pts, bar, [0.0, 1.0, 0.0], 24, rng.uniform(1.0, 1.7), (False, False))
 
 
+def bounds(m: mf.Manifold) -> np.ndarray:
+    """``m``'s axis-aligned bounding box as a (2, 3) array: the lowest and the highest corner (metres)."""
+    return np.asarray(m.bounding_box()).reshape(2, 3)
+
+
 def radial_noise(m: mf.Manifold, rng: np.random.Generator, amp: float, waves: int = 4) -> mf.Manifold:
     """Smooth lumps: scale each vertex's distance from the bounding-box centre by 1 + a sum of sinusoids
     of its direction (always a valid deformation: directions are kept, radii stay positive)."""
-    lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
+    lo, hi = bounds(m)
     c = (lo + hi) / 2
     d = rng.normal(size=(waves, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -222,7 +227,7 @@ def finish(m: mf.Manifold, size: float | None = None) -> trimesh.Trimesh:
     bodies = len(m.decompose())
     if bodies != 1:
         raise ValueError(f"{bodies} bodies")
-    lo, hi = np.asarray(m.bounding_box()).reshape(2, 3)
+    lo, hi = bounds(m)
     if size is not None:
         m = m.scale(tuple([size / float((hi - lo).max())] * 3))
     if m.num_tri() < MIN_FACES:
