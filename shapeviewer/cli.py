@@ -314,6 +314,7 @@ def cmd_train(args) -> int:
         lr=args.lr,
         eval_every=args.eval_every,
         eval_views=args.eval_views,
+        snapshot_every=args.snapshot_every,
         seed=args.seed,
         width=args.width,
         in_channels=args.in_channels,
@@ -506,6 +507,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--lr", type=float, default=1e-4)
     s.add_argument("--eval-every", type=int, default=500)
     s.add_argument("--eval-views", type=int, default=200)
+    s.add_argument(
+        "--snapshot-every",
+        type=int,
+        default=0,
+        help="keep the weights every this many steps as step_NNNNNN.pt, to average with `shapeviewer average`",
+    )
     s.add_argument("--width", type=int, default=None)
     s.add_argument(
         "--in-channels",

@@ -7,7 +7,9 @@ are trained on.
 
 Outputs in the run directory: ``last.pt`` (resumable: model, optimiser, step, RNG state),
 ``best_loss.pt`` (best training error), ``best_holdout_model.pt`` (best Holdout Models Jaccard),
-``log.csv`` and ``jaccard.png`` (the three curves).
+``log.csv`` and ``jaccard.png`` (the three curves); with ``snapshot_every``, ``step_NNNNNN.pt`` at every
+multiple of it, whose mean (:func:`average_weights`) averages the run's trajectory (stochastic weight
+averaging: a network at the centre of the region Adam wanders in at a constant rate).
 """
 
 from __future__ import annotations
@@ -264,6 +266,7 @@ class TrainConfig:
     eval_every: int = 500
     eval_views: int = 200
     checkpoint_every: int = 100
+    snapshot_every: int = 0  # keep the weights at every multiple of this step as step_NNNNNN.pt (0 = none)
     augment: bool = True
     seed: int = 0
     width: int | None = None  # unet3d width (None = the architecture's default)
@@ -413,6 +416,8 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
                 log.info(
                     "step %d loss %.1f %s", step, mean_loss, {s: round(r["jaccard"], 3) for s, r in result.items()}
                 )
+            if cfg.snapshot_every and step % cfg.snapshot_every == 0:
+                save_weights(run_dir / f"step_{step:06d}.pt", net, cfg.arch, meta())
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
                 _save_checkpoint(last, net, opt, rng, step, best_loss, best_jac, wall)
     finally:

@@ -57,9 +57,15 @@ def test_a_few_training_steps_lower_the_loss_and_checkpoints_round_trip(tiny_dat
 
 def test_training_on_the_soft_label_and_a_clear_error_for_shards_without_it(tiny_data, tmp_path):
     run = tmp_path / "run"
-    cfg = TrainConfig(steps=4, batch_size=4, lr=1e-3, eval_every=4, eval_views=8, label="fraction")
+    cfg = TrainConfig(steps=4, batch_size=4, lr=1e-3, eval_every=4, eval_views=8, label="fraction", snapshot_every=2)
     r = train(tiny_data, run, cfg, progress=False)
     assert load_completer(run / "best_loss.pt").meta["label"] == "fraction"
+    # Snapshots along the way, for a stochastic weight average: they differ, and the last is the final network.
+    assert sorted(p.name for p in run.glob("step_*.pt")) == ["step_000002.pt", "step_000004.pt"]
+    snaps = [torch.load(run / f"step_00000{k}.pt", weights_only=True)["state_dict"] for k in (2, 4)]
+    final = torch.load(run / "last.pt", weights_only=True)["state_dict"]
+    assert not torch.equal(snaps[0]["head.weight"], snaps[1]["head.weight"])
+    assert all(torch.equal(snaps[1][k], final[k]) for k in final)
     assert 0 <= r["holdout_model"]["jaccard"] <= 1
     sets = load_grid_sets(tiny_data)
     t = sets["training_view"].targets(np.arange(4), "fraction")
