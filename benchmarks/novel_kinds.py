@@ -12,7 +12,7 @@ and the Hull (:func:`shapeviewer.baselines.hull_mesh`) are scored against the tr
 (:func:`shapeviewer.metrics.sampled_jaccard`) and the mean symmetric surface distance (mm).
 
     python benchmarks/novel_kinds.py [--per-kind 4] [--views 2] [--seed 0] [--input mask] [--processes 2] \
-        [--weights PATH]
+        [--weights PATH] [--sensor realsense] [--noise-scale 2]
     python benchmarks/novel_kinds.py --objects holdout   # the same on the catalogue's holdout household objects
 
 Prints one line per view, then the means per kind and over all views, and how many views each
@@ -39,14 +39,14 @@ def _completer():
     return load_completer(WEIGHTS)
 
 
-def score(name: str, view: int, seed: int, source: str) -> dict | None:
+def score(name: str, view: int, seed: int, source: str, sensor: str | None, noise_scale: float) -> dict | None:
     """One view's J80 and mean distance per method (None when the object was hidden or not segmented)."""
     import shapeviewer as sv
     from shapeviewer.baselines import hull_mesh
     from shapeviewer.metrics import hausdorff, sampled_jaccard
     from shapeviewer.sim.tabletop import render_tabletop_view
 
-    v = render_tabletop_view(name, view, seed=seed)
+    v = render_tabletop_view(name, view, seed=seed, sensor=sensor, noise_scale=noise_scale)
     if v is None:
         return None
     truth = v.truth_cam()
@@ -86,6 +86,10 @@ def main() -> None:
         default="novel",
         help="the novel kinds, or for comparison the catalogue's holdout household objects (the first of each kind)",
     )
+    ap.add_argument("--sensor", choices=("kinect", "realsense"), default=None, help="default: each view draws one")
+    ap.add_argument(
+        "--noise-scale", type=float, default=1.0, help="the sensor's depth error times this (a worse sensor or surface)"
+    )
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     args = ap.parse_args()
@@ -101,7 +105,7 @@ def main() -> None:
         names = [n for k in household.KINDS for n in of_kind[k][: args.per_kind]]
     rng = np.random.default_rng([args.seed, 17])
     jobs = [
-        (name, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)), args.seed, args.input)
+        (name, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)), args.seed, args.input, args.sensor, args.noise_scale)
         for name in names
         for _ in range(args.views)
     ]

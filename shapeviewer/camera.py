@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -177,6 +177,11 @@ class DepthNoise(ABC):
     def reach_px(self) -> int | None:
         """How far (pixels) from the measured pixels the noise reaches; None: anywhere in the image."""
         return None
+
+    def scaled(self, factor: float) -> DepthNoise:
+        """The same sensor with ``factor`` times the depth error (``sigma_a`` and ``sigma_b``): a
+        worse sensor, or a worse surface, than the model's, for stress tests and training."""
+        return replace(self, sigma_a=self.sigma_a * factor, sigma_b=self.sigma_b * factor)
 
     def apply(self, depth: np.ndarray, seed: int | np.random.Generator = 0) -> np.ndarray:
         """A noisy copy of an ideal depth image (metres, 0 = missing), drawn from ``seed``."""

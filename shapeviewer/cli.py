@@ -293,7 +293,13 @@ def cmd_generate(args) -> int:
 
     r = generate(
         args.out,
-        GenerationConfig(views=args.views, noise=not args.no_noise, seed=args.seed, scenes=args.scenes),
+        GenerationConfig(
+            views=args.views,
+            noise=not args.no_noise,
+            seed=args.seed,
+            scenes=args.scenes,
+            noise_scale=tuple(args.noise_scale),
+        ),
         objects=args.objects,
         workers=args.workers,
         backend=args.backend,
@@ -493,6 +499,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="catalogue names, or generated ones it does not list (assembly/parts_000 ...); default: the catalogue",
     )
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
+    s.add_argument(
+        "--noise-scale",
+        type=float,
+        nargs=2,
+        default=(1.0, 1.0),
+        metavar=("LO", "HI"),
+        help="each view's depth error is the sensor model's times a factor drawn from LO-HI (default 1 1)",
+    )
     s.add_argument("--workers", type=int, default=None)
     s.add_argument("--backend", default="process", choices=BACKENDS)
     s.add_argument("--seed", type=int, default=0)

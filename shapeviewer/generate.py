@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
+from .camera import DepthNoise, Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
 from .fileio import atomic_write
 from .geometry import raycasting_scene
 from .sim import catalogue
@@ -61,6 +61,9 @@ class GenerationConfig:
     noise: bool = True
     seed: int = 0
     scenes: str = "sphere"  # "sphere": the paper's floating views; "tabletop": robot views of a table
+    # Each view's depth error is the sensor model's times a factor drawn from this range
+    # (DepthNoise.scaled): training on a range of sensors and surfaces, not on one model's.
+    noise_scale: tuple[float, float] = (1.0, 1.0)
 
 
 def orientation(view: int) -> np.ndarray:
@@ -97,13 +100,22 @@ def view_pose(name: str, view: int, seed: int) -> np.ndarray:
     return T
 
 
+def view_noise_scale(name: str, view: int, config: GenerationConfig) -> float:
+    """The depth-error factor of one view, drawn from ``config.noise_scale`` (seeded by the view)."""
+    lo, hi = config.noise_scale
+    if hi <= lo:
+        return float(lo)
+    rng = np.random.default_rng([config.seed, catalogue.stable_percent(name), len(name), int(view), 29])
+    return float(rng.uniform(lo, hi))
+
+
 def noise_seed(seed: int, view: int) -> list[int]:
     """The sensor-noise seed of one view (shared by training data and evaluation renders)."""
     return [seed, int(view), 7]
 
 
 def render_view(
-    renderer: RaycastRenderer, T_cam_obj: np.ndarray, intr: Intrinsics, noise: KinectNoise | None, seed
+    renderer: RaycastRenderer, T_cam_obj: np.ndarray, intr: Intrinsics, noise: DepthNoise | None, seed
 ) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) metres of an object at ``T_cam_obj``: ``(ideal, measured)``.
 
@@ -217,7 +229,8 @@ def _sphere_examples(name: str, config: GenerationConfig):
     surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
     for view in view_indices(name, config):
         T = view_pose(name, int(view), config.seed)
-        ideal, measured = render_view(renderer, T, intr, noise, noise_seed(config.seed, view))
+        scaled = noise.scaled(view_noise_scale(name, int(view), config)) if noise is not None else None
+        ideal, measured = render_view(renderer, T, intr, scaled, noise_seed(config.seed, view))
         if len(measured) < 10 or len(ideal) < 10:
             yield "few_voxels"
             continue
@@ -246,7 +259,7 @@ def _tabletop_examples(name: str, config: GenerationConfig):
     scene = raycasting_scene(mesh)
     surface = surface_samples(mesh, spacing=np.sort(mesh.extents)[1] / 32 / 2)
     for view in range(config.views or 32):
-        v = render_tabletop_view(name, view, seed=config.seed)
+        v = render_tabletop_view(name, view, seed=config.seed, noise_scale=view_noise_scale(name, view, config))
         if v is None:
             yield "no_view"
             continue
@@ -359,7 +372,13 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
         "version": 1,
         "grid": GRID_DIM,
         "orientation_grid": ORIENTATION_GRID,
-        "config": {"views": config.views, "noise": config.noise, "seed": config.seed, "scenes": config.scenes},
+        "config": {
+            "views": config.views,
+            "noise": config.noise,
+            "seed": config.seed,
+            "scenes": config.scenes,
+            "noise_scale": list(config.noise_scale),
+        },
         "camera": Intrinsics.kinect().to_dict(),
         "examples": examples,
         "shards": shards,

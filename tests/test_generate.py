@@ -5,7 +5,14 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from shapeviewer.generate import GenerationConfig, generate, generate_object, orientation, view_pose
+from shapeviewer.generate import (
+    GenerationConfig,
+    generate,
+    generate_object,
+    orientation,
+    view_noise_scale,
+    view_pose,
+)
 from shapeviewer.sim import catalogue
 from shapeviewer.train import load_grid_sets
 from shapeviewer.voxel import GridFrame
@@ -136,3 +143,12 @@ def test_ray_backend_gives_the_same_shards(generated, tmp_path):
         with np.load(out / "shards" / name) as a, np.load(tmp_path / "shards" / name) as b:
             for k in ("x", "y", "views", "center"):
                 np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_each_view_draws_its_depth_error_factor_from_the_range():
+    cfg = GenerationConfig(noise_scale=(0.7, 3.0))
+    scales = np.array([view_noise_scale("ycb/025_mug", v, cfg) for v in range(200)])
+    assert (scales >= 0.7).all() and (scales <= 3.0).all() and scales.std() > 0.5  # spread over the range
+    # Seeded by the view: a rerun (or a resumed generation) draws the same factors.
+    assert view_noise_scale("ycb/025_mug", 7, cfg) == scales[7]
+    assert view_noise_scale("ycb/025_mug", 7, GenerationConfig()) == 1.0  # the default: the sensor model as is

@@ -72,3 +72,14 @@ def test_realsense_noise_grows_with_distance_and_flies_at_edges():
     assert isinstance(noise_model("kinect"), KinectNoise) and noise_model("none") is None
     with pytest.raises(ValueError, match="unknown sensor noise"):
         noise_model("lidar")
+
+
+@pytest.mark.parametrize("sensor", ["kinect", "realsense"])
+def test_a_scaled_sensor_has_that_many_times_the_depth_error(sensor):
+    depth = np.full((120, 160), 0.9, np.float32)
+    base = noise_model(sensor)
+    err = lambda noise: float(np.std((d := noise.apply(depth, seed=3))[d > 0] - 0.9))  # noqa: E731
+    assert err(base.scaled(1.0)) == pytest.approx(err(base))
+    # Kinect's disparity steps (about 2 mm at 0.9 m) keep its error from scaling exactly.
+    assert 2.0 < err(base.scaled(3.0)) / err(base) < 3.5
+    assert err(base.scaled(0.5)) < err(base)

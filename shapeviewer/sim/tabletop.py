@@ -125,6 +125,7 @@ def render_tabletop_view(
     sensor: str | None = None,
     neighbour_pool: list[str] | None = None,
     tries: int = 4,
+    noise_scale: float = 1.0,
 ) -> TabletopView | None:
     """Render and segment view ``view`` of ``name`` resting on a table; None if no usable view came out.
 
@@ -136,6 +137,7 @@ def render_tabletop_view(
         neighbour_pool: catalogue names neighbours are drawn from (default: every catalogue object
             of the target's split, so holdout models stand among holdout models).
         tries: camera/layout draws before giving up (a neighbour may hide the target).
+        noise_scale: the sensor's depth error times this (:meth:`shapeviewer.camera.DepthNoise.scaled`).
     """
     from ..segment import SegmentationError, segment_scene
     from .demo_scene import table_mesh
@@ -182,7 +184,7 @@ def render_tabletop_view(
             continue
         noise = noise_model(sensor)
         if noise is not None:
-            depth = noise.apply(depth, rng)
+            depth = noise.scaled(noise_scale).apply(depth, rng)
         points = backproject(depth, intr)
         valid = np.isfinite(points).all(axis=-1)
         labels = np.where(valid & (gid > 0), gid - 1, -1).astype(np.int32)
