@@ -105,7 +105,14 @@ def main() -> None:
         names = [n for k in household.KINDS for n in of_kind[k][: args.per_kind]]
     rng = np.random.default_rng([args.seed, 17])
     jobs = [
-        (name, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)), args.seed, args.input, args.sensor, args.noise_scale)
+        (
+            name,
+            TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)),
+            args.seed,
+            args.input,
+            args.sensor,
+            args.noise_scale,
+        )
         for name in names
         for _ in range(args.views)
     ]

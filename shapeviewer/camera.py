@@ -170,8 +170,16 @@ def backproject_valid(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
     return np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
 
 
+@dataclass(frozen=True)
 class DepthNoise(ABC):
-    """A depth sensor model: :meth:`apply` turns an ideal depth image into a measured one."""
+    """A depth sensor model: :meth:`apply` turns an ideal depth image into a measured one.
+
+    Every model's depth error has a constant part ``sigma_a`` and a part ``sigma_b`` that grows
+    with the depth (metres); each subclass says how it grows.
+    """
+
+    sigma_a: float = 0.0
+    sigma_b: float = 0.0
 
     @property
     def reach_px(self) -> int | None:
