@@ -85,13 +85,13 @@ def view_indices(name: str, config: GenerationConfig) -> np.ndarray:
     total = int(np.prod(ORIENTATION_GRID))
     if config.views is None or config.views >= total:
         return np.arange(total)
-    rng = np.random.default_rng([config.seed, catalogue.stable_percent(name), len(name)])
+    rng = np.random.default_rng(catalogue.object_seed(name, config.seed))
     return np.sort(rng.choice(total, size=config.views, replace=False))
 
 
 def view_pose(name: str, view: int, seed: int) -> np.ndarray:
     """T_cam_obj (4x4): the object's pose in the camera frame for one view (metres)."""
-    rng = np.random.default_rng([seed, catalogue.stable_percent(name), len(name), view])
+    rng = np.random.default_rng(catalogue.object_seed(name, seed, view))
     d = rng.uniform(*DISTANCE_RANGE)
     T = np.eye(4)
     T[:3, :3] = orientation(view)
@@ -105,7 +105,7 @@ def view_noise_scale(name: str, view: int, config: GenerationConfig) -> float:
     lo, hi = config.noise_scale
     if hi <= lo:
         return float(lo)
-    rng = np.random.default_rng([config.seed, catalogue.stable_percent(name), len(name), int(view), 29])
+    rng = np.random.default_rng(catalogue.object_seed(name, config.seed, view, 29))
     return float(rng.uniform(lo, hi))
 
 

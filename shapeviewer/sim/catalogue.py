@@ -86,6 +86,12 @@ def stable_percent(key: str) -> int:
     return int(hashlib.sha1(key.encode()).hexdigest()[:8], 16) % 100
 
 
+def object_seed(name: str, seed: int, *draw: int) -> list[int]:
+    """The seed of a random draw about object ``name`` (``draw`` names which one): the same on every
+    machine, different for every object, run ``seed`` and draw."""
+    return [int(seed), stable_percent(name), len(name), *(int(d) for d in draw)]
+
+
 def model_split(name: str) -> str:
     """``train`` or ``holdout_model`` for a catalogue name (the documented fixed rule)."""
     source, _, short = name.partition("/")

@@ -142,7 +142,7 @@ def render_tabletop_view(
     from ..segment import SegmentationError, segment_scene
     from .demo_scene import table_mesh
 
-    rng = np.random.default_rng([seed, catalogue.stable_percent(name), len(name), int(view), 11])
+    rng = np.random.default_rng(catalogue.object_seed(name, seed, view, 11))
     sensor = sensor or SENSORS[int(rng.integers(len(SENSORS)))]
     intr = sensor_intrinsics(sensor)
     if neighbour_pool is None:
