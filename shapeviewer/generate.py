@@ -65,6 +65,11 @@ class GenerationConfig:
     # (DepthNoise.scaled): training on a range of sensors and surfaces, not on one model's.
     noise_scale: tuple[float, float] = (1.0, 1.0)
 
+    def __post_init__(self) -> None:
+        lo, hi = self.noise_scale
+        if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+            raise ValueError(f"noise_scale must be a range 0 <= LO <= HI, got LO={lo:g} HI={hi:g}")
+
 
 def orientation(view: int) -> np.ndarray:
     """3x3 rotation of view number ``view`` on the 11 x 6 x 11 roll-pitch-yaw grid (about 0.57 rad steps)."""
@@ -103,7 +108,7 @@ def view_pose(name: str, view: int, seed: int) -> np.ndarray:
 def view_noise_scale(name: str, view: int, config: GenerationConfig) -> float:
     """The depth-error factor of one view, drawn from ``config.noise_scale`` (seeded by the view)."""
     lo, hi = config.noise_scale
-    if hi <= lo:
+    if hi == lo:
         return float(lo)
     rng = np.random.default_rng(catalogue.object_seed(name, config.seed, view, 29))
     return float(rng.uniform(lo, hi))

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 from scipy import ndimage
 
+from shapeviewer.cli import main
 from shapeviewer.generate import (
     GenerationConfig,
     generate,
@@ -152,3 +153,13 @@ def test_each_view_draws_its_depth_error_factor_from_the_range():
     # Seeded by the view: a rerun (or a resumed generation) draws the same factors.
     assert view_noise_scale("ycb/025_mug", 7, cfg) == scales[7]
     assert view_noise_scale("ycb/025_mug", 7, GenerationConfig()) == 1.0  # the default: the sensor model as is
+
+
+def test_a_reversed_or_negative_noise_range_is_refused_with_a_clear_error(tmp_path, capsys):
+    for bad in ((3.0, 0.7), (-1.0, 2.0), (1.0, float("nan"))):
+        with pytest.raises(ValueError, match="LO <= HI"):
+            GenerationConfig(noise_scale=bad)
+    out = tmp_path / "gen"
+    code = main(["generate", "--out", str(out), "--objects", "ycb/025_mug", "--noise-scale", "3", "0.7"])
+    assert code == 2 and "LO <= HI" in capsys.readouterr().err
+    assert not out.exists()  # the folder the command would have made is not left behind
