@@ -230,7 +230,7 @@ def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.nd
         path = stem.with_name(f"{stem.name}_sample_{k}.{fmt}")
         path.write_bytes(export.mesh_bytes(mesh, fmt, frame, T_world_cam))
         files.append(path.name)
-    sides, guessed = confidence_figures(c.grid_in, c.grid_out, c.spread)
+    sides, guessed = confidence_figures(c.grid_in, c.solid, c.spread)
     return {"n": len(c.samples), "meshes": files, "mean_spread": dict(sides), "guessed_share": guessed}
 
 
@@ -357,7 +357,9 @@ def cmd_evaluate_grids(args) -> int:
         }
         if not any(len(gs) for gs in sets.values()):
             raise ValueError(f"no views of kinds {', '.join(args.kinds)} in {', '.join(args.data)}")
-    r = evaluate_grids(completer, sets, max_views=args.views, seed=args.seed, label=completer.label)
+    # The paper's metric: the output grid against Y.
+    r = evaluate_grids(completer, sets, max_views=args.views, seed=args.seed, level=completer.grid_level)
+    print(f"Jaccard at 40^3 against the paper's Y, output grid p > {completer.grid_level:g}")
     print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
     for s, v in r.items():
         print(f"{s:15s} {v['views']:6d} {v['jaccard']:8.3f} {v['input_jaccard']:10.3f}")

@@ -172,6 +172,12 @@ def default_device() -> torch.device:
 # Where a network's answers are meshed, by the label it was trained on (``train --label``): Y puts
 # the 0.5 contour outside the object (reconstruct.MESH_LEVEL), the soft label on it.
 LABEL_MESH_LEVELS = {"solid": MESH_LEVEL, "fraction": 0.5}
+# The output grid is the network's estimate of the paper's Y: every voxel the object's surface
+# passes through (SPEC §4). A network trained on Y marks those above 0.5; one trained on the soft
+# label answers how much of each voxel the object fills, and a voxel the surface only grazes is
+# part of Y though it is mostly empty. On training views its Y Jaccard peaks at 0.2-0.25
+# (model card, "The output grid"), so such a network's grid is p > 0.25.
+LABEL_GRID_LEVELS = {"solid": 0.5, "fraction": 0.25}
 
 
 @dataclass
@@ -205,6 +211,13 @@ class Completer:
         (chosen by a level scan, see the model card), else the level of the label it was trained on
         (:data:`LABEL_MESH_LEVELS`)."""
         return float(self.meta.get("mesh_level", LABEL_MESH_LEVELS[self.label]))
+
+    @property
+    def grid_level(self) -> float:
+        """The probability above which a voxel is in this network's output grid (its estimate of
+        the paper's Y): the weights' ``meta["grid_level"]``, else the level of the label it was
+        trained on (:data:`LABEL_GRID_LEVELS`)."""
+        return float(self.meta.get("grid_level", LABEL_GRID_LEVELS[self.label]))
 
     @property
     def in_channels(self) -> int:

@@ -51,6 +51,8 @@ class Completion:
         error: why a mesh is missing, if it is.
         mesh_level: the probability its meshes are taken at (the network's
             :attr:`~shapeviewer.model.Completer.mesh_level`).
+        grid_level: the probability above which a voxel is in :attr:`grid_out` (the network's
+            :attr:`~shapeviewer.model.Completer.grid_level`).
     """
 
     segment_id: int
@@ -69,11 +71,19 @@ class Completion:
     timings: dict = field(default_factory=dict)
     error: str | None = None
     mesh_level: float = MESH_LEVEL
+    grid_level: float = 0.5
 
     @property
     def grid_out(self) -> np.ndarray:
-        """(40, 40, 40) bool: voxels with occupancy probability above 0.5."""
-        return self.probabilities > 0.5
+        """(40, 40, 40) bool: the CNN's output grid, the voxels with occupancy probability above
+        :attr:`grid_level` (its estimate of the paper's Y: every voxel the object's surface passes through)."""
+        return self.probabilities > self.grid_level
+
+    @property
+    def solid(self) -> np.ndarray:
+        """(40, 40, 40) bool: the voxels the completion's meshes enclose, probability above
+        :attr:`mesh_level`; what its uncertainty (:func:`confidence_figures`) is measured on."""
+        return self.probabilities > self.mesh_level
 
     @property
     def spread(self) -> np.ndarray | None:
@@ -87,19 +97,19 @@ GUESS_SPREAD = 0.1
 
 
 def confidence_figures(
-    grid_in: np.ndarray, grid_out: np.ndarray, spread: np.ndarray
+    grid_in: np.ndarray, solid: np.ndarray, spread: np.ndarray
 ) -> tuple[list[tuple[str, float]], float]:
     """How sure a completion is: ``([(side, mean spread)], share of guessed voxels)``.
 
     A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an
     occupied input voxel, else ``unseen`` (sides without voxels are left out); ``spread`` is the
     per-voxel disagreement of sample completions (:func:`~shapeviewer.model.sample_spread`),
-    ``grid_in`` / ``grid_out`` boolean grids of the same shape. A guessed voxel is a completed one
-    with a spread above :data:`GUESS_SPREAD`.
+    ``grid_in`` / ``solid`` (the completed voxels, :attr:`Completion.solid`) boolean grids of the
+    same shape. A guessed voxel is a completed one with a spread above :data:`GUESS_SPREAD`.
     """
     from scipy import ndimage
 
-    occupied = np.asarray(grid_out, dtype=bool)
+    occupied = np.asarray(solid, dtype=bool)
     seen = ndimage.binary_dilation(grid_in) & occupied
     unseen = occupied & ~seen
     figures = [(what, float(spread[m].mean())) for what, m in (("seen", seen), ("unseen", unseen)) if m.any()]
@@ -186,8 +196,8 @@ def complete_points(
         except ValueError as e:
             mesh, err = None, str(e)
         timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
-        level = completer.mesh_level
-        out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err, mesh_level=level))
+        levels = {"mesh_level": completer.mesh_level, "grid_level": completer.grid_level}
+        out.append(Completion(sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err, **levels))
     return out
 
 

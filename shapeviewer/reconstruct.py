@@ -17,8 +17,8 @@ from skimage import measure
 from .geometry import concatenate_meshes
 from .voxel import GridFrame, below_plane, seen_free
 
-# The CNN's output grid is p > 0.5 (the paper's, scored against Y at 40^3), but the meshes of a
-# network trained on Y are taken higher. Y marks every voxel the object's surface passes through
+# A network trained on Y marks its output grid at p > 0.5 (the paper's, scored against Y at
+# 40^3), but its meshes are taken higher. Y marks every voxel the object's surface passes through
 # (SPEC §4), so such a network learns a shape up to a voxel fatter than the object and its 0.5
 # contour lies outside the true surface: fast meshes at 0.5 held 1.35 times the object's volume
 # (median, 100 tabletop views). Procedural shapes fit best at 0.7, the scanned YCB objects at

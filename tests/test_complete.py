@@ -90,6 +90,18 @@ def test_the_network_never_fills_space_known_to_be_empty(can_view):
     assert ctx.any() and not (p[ctx.any(axis=0)] > 0).any()
 
 
+def test_the_output_grid_holds_every_voxel_the_completed_surface_passes_through(can_view):
+    """The CNN's 40^3 output grid is the paper's Y: every voxel the object's surface passes
+    through. The shipped network answers how much of each voxel the can fills, so a grid cut at
+    0.5 would drop the voxels its surface only grazes; the grid's level keeps them."""
+    (c,) = complete_points([can_view.points_cam], load_completer(), support_plane=can_view.plane_cam)
+    assert c.grid_level < 0.5 and np.array_equal(c.grid_out, c.probabilities > c.grid_level)
+    surface = c.frame.to_grid(c.fast_mesh.sample(5000, seed=0)).astype(int)
+    in_grid = c.grid_out[tuple(surface.T)].mean()
+    in_half = (c.probabilities > 0.5)[tuple(surface.T)].mean()
+    assert in_grid > 0.9 and in_grid > in_half + 0.25, (in_grid, in_half)
+
+
 def test_the_detailed_mesh_meshes_the_mean_of_the_mirrored_answers_and_keeps_them(can_view):
     v = can_view
     completer = load_completer()

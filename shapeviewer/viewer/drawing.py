@@ -254,15 +254,15 @@ class PipelineDrawing:
         idx = surface_voxels(c.grid_out)
         colors: np.ndarray | tuple[int, int, int]
         if shade_output:
-            colors = probability_colors(c.probabilities[tuple(idx.T)])
+            colors = probability_colors(c.probabilities[tuple(idx.T)], c.grid_level)
         else:
             colors = shade(np.asarray(scene.segments[c.segment_id].color), 1.5)
         self.draw_voxels(scene, f"/cnn_output/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, colors)
 
     def draw_confidence(self, scene: LoadedScene, c: Completion, spread: np.ndarray) -> None:
-        """The CNN output's surface voxels coloured by ``spread`` (per voxel of the grid, how much
-        sample completions disagree: :func:`~shapeviewer.model.sample_spread`)."""
-        idx = surface_voxels(c.grid_out)
+        """The surface voxels of the completed solid coloured by ``spread`` (per voxel of the grid,
+        how much sample completions disagree: :func:`~shapeviewer.model.sample_spread`)."""
+        idx = surface_voxels(c.solid)
         self.draw_voxels(
             scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, spread_colors(spread[tuple(idx.T)])
         )

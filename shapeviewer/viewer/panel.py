@@ -48,12 +48,17 @@ LAYERS: tuple[Layer, ...] = (
     Layer("cloud", "Cloud", True, "The full captured point cloud (paper Fig. 5, step 1)."),
     Layer("segments", "Segments", True, "Object segments after table removal and Euclidean clustering (step 2)."),
     Layer("cnn_input", "CNN input", True, "Occupied voxels of the 40^3 input grid of each completed segment (step 3)."),
-    Layer("cnn_output", "CNN output", False, "Voxels the CNN marks occupied (p > 0.5) (step 4)."),
+    Layer(
+        "cnn_output",
+        "CNN output",
+        False,
+        "Voxels the CNN marks occupied: its 40^3 grid of every voxel the surface passes through (step 4).",
+    ),
     Layer(
         "confidence",
         "Confidence",
         False,
-        "The CNN output shaded by how much 8 sample completions disagree: pale = seen, dark purple = a guess.",
+        "The completed voxels shaded by how much 8 sample completions disagree: pale = seen, dark purple = a guess.",
     ),
     Layer("fast_mesh", "Fast mesh", True, "Marching cubes of the CNN output, in metres (step 5a)."),
     Layer(
@@ -175,7 +180,9 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
             "Cloud colours", ("capture", "depth"), hint="Colour the cloud with the sensor's colours or by depth"
         )
         shade_output = gui.add_checkbox(
-            "Shade by p", True, hint="Colour CNN output voxels by occupancy probability (yellow 0.5, red 1)"
+            "Shade by p",
+            True,
+            hint="Colour CNN output voxels by occupancy probability (yellow: barely in the grid, red: sure)",
         )
         sample = gui.add_slider(
             "Sample",

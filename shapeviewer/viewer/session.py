@@ -526,7 +526,7 @@ class Session:
         assert spread is not None and self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
-            c.segment_id, *confidence_figures(c.grid_in, c.grid_out, spread)
+            c.segment_id, *confidence_figures(c.grid_in, c.solid, spread)
         )
 
     def show_sample(self, k: int, client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:

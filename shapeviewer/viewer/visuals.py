@@ -26,11 +26,11 @@ def depth_colors(depth: np.ndarray, lo: float | None = None, hi: float | None = 
     return (colormaps["turbo"](x)[:, :3] * 255).astype(np.uint8)
 
 
-def probability_colors(p: np.ndarray) -> np.ndarray:
-    """uint8 RGB (N, 3) for occupancy probabilities in [0.5, 1]: pale yellow (unsure) to dark red (sure)."""
+def probability_colors(p: np.ndarray, lo: float = 0.5) -> np.ndarray:
+    """uint8 RGB (N, 3) for occupancy probabilities in [lo, 1]: pale yellow (unsure) to dark red (sure)."""
     from matplotlib import colormaps
 
-    x = np.clip((np.asarray(p, dtype=np.float64) - 0.5) * 2.0, 0.0, 1.0)
+    x = np.clip((np.asarray(p, dtype=np.float64) - lo) / max(1.0 - lo, 1e-6), 0.0, 1.0)
     return (colormaps["YlOrRd"](0.25 + 0.75 * x)[:, :3] * 255).astype(np.uint8)
 
 
