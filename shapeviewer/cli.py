@@ -174,7 +174,9 @@ def cmd_complete(args) -> int:
         if args.samples:
             c.samples = completer.predict_samples(c.grid_in, args.samples, context=c.context)
         (out / f"segment_{s.id}_grids.npz").write_bytes(
-            export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T_world_cam, samples=c.samples)
+            export.grids_npz_bytes(
+                c.grid_in, c.probabilities, c.frame, T_world_cam, grid_out=c.grid_out, samples=c.samples
+            )
         )
         if c.samples is not None:
             e["samples"] = _write_sample_meshes(c, out / f"segment_{s.id}", args.format, args.frame, T_world_cam)

@@ -64,20 +64,22 @@ def grids_npz_bytes(
     frame: GridFrame,
     T_world_cam: np.ndarray | None = None,
     *,
+    grid_out: np.ndarray | None = None,
     samples: np.ndarray | None = None,
 ) -> bytes:
     """CNN input and output grids with their frame: ``grid_in`` (bool), ``probabilities`` (float32),
+    ``grid_out`` (bool, the output grid when given: :attr:`~shapeviewer.pipeline.Completion.grid_out`),
     ``grid_to_camera`` (4x4, grid coordinates -> camera metres; voxel (i,j,k) centre at (i,j,k)+0.5),
     ``T_world_cam`` (4x4) and ``frame_json``; with ``samples`` ((n, 40, 40, 40) sample completions,
     :meth:`~shapeviewer.model.Completer.predict_samples`) also ``samples`` (float16) and ``spread``
     (float32, their per-voxel disagreement, :func:`~shapeviewer.model.sample_spread`: the
     completion's uncertainty)."""
-    arrays: dict[str, Any] = {}
+    arrays: dict[str, Any] = {} if grid_out is None else {"grid_out": np.asarray(grid_out, bool)}
     if samples is not None:
         from .model import sample_spread  # torch is loaded only by callers that have samples
 
         samples = np.asarray(samples, np.float32)
-        arrays = {"samples": samples.astype(np.float16), "spread": sample_spread(samples)}
+        arrays |= {"samples": samples.astype(np.float16), "spread": sample_spread(samples)}
     buf = io.BytesIO()
     np.savez_compressed(
         buf,

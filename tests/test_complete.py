@@ -151,6 +151,8 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
         assert samples.shape == (4, 40, 40, 40)
         np.testing.assert_allclose(samples[0], z["probabilities"], atol=1e-3)  # float16 storage
         np.testing.assert_allclose(z["spread"], sample_spread(samples), atol=5e-3)
+        # The output grid: every voxel the completed surface passes through, the solid inside it.
+        assert (z["grid_out"] >= (z["probabilities"] > 0.5)).all() and z["grid_out"].sum() > z["grid_in"].sum()
         assert 0 < e["samples"]["mean_spread"]["unseen"] < 0.5 and e["samples"]["n"] == 4
         fast = trimesh.load(out / e["mesh"]["fast"])
         first = trimesh.load(out / e["samples"]["meshes"][0])

@@ -284,6 +284,7 @@ def test_capture_exports_download_and_parse(walk):
         probabilities = z["probabilities"]
         assert probabilities.shape == (40, 40, 40) and 0.0 <= probabilities.min() <= probabilities.max() <= 1.0
         assert (probabilities > 0.5).sum() >= z["grid_in"].sum() // 2  # the completion fills the seen voxels
+        assert z["grid_out"].dtype == bool and (z["grid_out"] >= (probabilities > 0.5)).all()
         assert z["grid_to_camera"].shape == (4, 4) and json.loads(str(z["frame_json"]))
 
     # Every mesh, in three of the formats (the format is kept between downloads, as a user would).

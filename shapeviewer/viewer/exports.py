@@ -44,7 +44,7 @@ def segment_export(
     if c is None:
         raise ValueError(f"Segment {sid} has no completion yet: complete it first.")
     if kind == "grids":
-        return f"{stem}_grids.npz", export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T)
+        return f"{stem}_grids.npz", export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T, grid_out=c.grid_out)
     if kind == "mesh":
         if mesh not in MESH_KINDS:
             raise ValueError(f"unknown mesh {mesh!r}; choose one of {MESH_KINDS}")
