@@ -196,10 +196,19 @@ def complete_points(
         except ValueError as e:
             mesh, err = None, str(e)
         timings = {"voxelize": (t1 - t0) / n, "cnn": (t2 - t1) / n, "fast_mesh": time.perf_counter() - t3}
-        levels = (completer.mesh_level, completer.grid_level)
         out.append(
             Completion(
-                sid, g, fr, p, mesh, ctx, plane, timings=timings, error=err, mesh_level=levels[0], grid_level=levels[1]
+                sid,
+                g,
+                fr,
+                p,
+                mesh,
+                ctx,
+                plane,
+                timings=timings,
+                error=err,
+                mesh_level=completer.mesh_level,
+                grid_level=completer.grid_level,
             )
         )
     return out
