@@ -24,7 +24,7 @@ from collections import defaultdict
 
 import numpy as np
 
-SHIFTS = (0, 2, 4, 6)  # voxels towards the camera
+SHIFTS = (2, 4, 6)  # voxels towards the camera
 SURFACE_SAMPLES = 20_000
 
 
@@ -63,18 +63,11 @@ def main() -> None:
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args()
 
-    from shapeviewer.evaluation.viewsets import TABLETOP_VIEW_OFFSET
-    from shapeviewer.sim import catalogue, household
+    from novel_kinds import holdout_household, tabletop_views  # benchmarks/novel_kinds.py: the same views
+
     from shapeviewer.voxel import GRID_DIM
 
-    holdout = sorted(e.name for e in catalogue.catalogue() if e.split == "holdout_model")
-    names = [
-        n for k in household.KINDS for n in [h for h in holdout if h.startswith(f"household/{k}_")][: args.per_kind]
-    ]
-    rng = np.random.default_rng([args.seed, 17])
-    jobs = [
-        (n, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)), args.seed) for n in names for _ in range(args.views)
-    ]
+    jobs = [(n, view, args.seed) for n, view in tabletop_views(holdout_household(args.per_kind), args.views, args.seed)]
     with mp.get_context("spawn").Pool(args.processes) as pool:
         rows = [r for r in pool.starmap(extent, jobs, chunksize=2) if r is not None]
     by_kind: dict[str, list[dict]] = defaultdict(list)

@@ -64,6 +64,23 @@ def score(name: str, view: int, seed: int, source: str, sensor: str | None, nois
     return row
 
 
+def holdout_household(per_kind: int) -> list[str]:
+    """The first ``per_kind`` holdout models of each household kind (catalogue names)."""
+    from shapeviewer.sim import catalogue, household
+
+    holdout = sorted(e.name for e in catalogue.catalogue() if e.split == "holdout_model")
+    return [n for k in household.KINDS for n in [h for h in holdout if h.startswith(f"household/{k}_")][:per_kind]]
+
+
+def tabletop_views(names: list[str], views: int, seed: int) -> list[tuple[str, int]]:
+    """``views`` seeded tabletop view ids of each object, ``(name, view)``, numbered as the
+    evaluation's tabletop set numbers its own (past ``TABLETOP_VIEW_OFFSET``)."""
+    from shapeviewer.evaluation.viewsets import TABLETOP_VIEW_OFFSET
+
+    rng = np.random.default_rng([seed, 17])
+    return [(name, TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000))) for name in names for _ in range(views)]
+
+
 def _init(threads: int, weights: str | None) -> None:
     import torch
 
@@ -94,27 +111,12 @@ def main() -> None:
     ap.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     args = ap.parse_args()
 
-    from shapeviewer.evaluation.viewsets import TABLETOP_VIEW_OFFSET
-    from shapeviewer.sim import catalogue, household, novel
+    from shapeviewer.sim import novel
 
-    if args.objects == "novel":
-        names = novel.names(args.per_kind)
-    else:
-        holdout = sorted(e.name for e in catalogue.catalogue() if e.split == "holdout_model")
-        of_kind = {k: [n for n in holdout if n.startswith(f"household/{k}_")] for k in household.KINDS}
-        names = [n for k in household.KINDS for n in of_kind[k][: args.per_kind]]
-    rng = np.random.default_rng([args.seed, 17])
+    names = novel.names(args.per_kind) if args.objects == "novel" else holdout_household(args.per_kind)
     jobs = [
-        (
-            name,
-            TABLETOP_VIEW_OFFSET + int(rng.integers(1_000_000)),
-            args.seed,
-            args.input,
-            args.sensor,
-            args.noise_scale,
-        )
-        for name in names
-        for _ in range(args.views)
+        (name, view, args.seed, args.input, args.sensor, args.noise_scale)
+        for name, view in tabletop_views(names, args.views, args.seed)
     ]
     threads = max(1, (mp.cpu_count() or 1) // args.processes)
     with mp.get_context("spawn").Pool(args.processes, initializer=_init, initargs=(threads, args.weights)) as pool:
