@@ -65,12 +65,12 @@ def main() -> None:
             print(f"skip {name} {view}: {e}")
             continue
         kind = catalogue.shape_kind(name)
-        grid, frame = partial_to_grid(v.points_cam)
-        ctx = context_grids(v.points_cam, frame, support_plane=v.support_plane)
         base = {"object": name, "view": view, "view_set": view_set, "kind": kind, "sensor": v.sensor}
         j, d = score(hull_mesh(v.points_cam), v.truth_cam)
         rows.append({**base, "variant": "Hull", "j80": j, "distance_mm": d})
         for label, c in completers.items():
+            grid, frame = partial_to_grid(v.points_cam, depth_shift=c.depth_shift)
+            ctx = context_grids(v.points_cam, frame, support_plane=v.support_plane)
             variants = [(label, ctx, v.support_plane)]
             if not args.no_ablation:
                 variants.append((f"{label}-noctx", None, None))

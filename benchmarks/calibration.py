@@ -20,7 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from shapeviewer.model import load_completer, sample_spread
-from shapeviewer.train import load_grid_sets
+from shapeviewer.train import check_placement, load_grid_sets
 
 
 def main() -> None:
@@ -34,6 +34,7 @@ def main() -> None:
     ap.add_argument("--plain-std", action="store_true", help="rank by the std of the probabilities instead")
     args = ap.parse_args()
     completer = load_completer(args.weights)
+    check_placement(completer, args.data)
     gs = load_grid_sets(args.data)[args.set]
     rng = np.random.default_rng(args.seed)
     idx = np.sort(rng.choice(len(gs), size=min(args.views, len(gs)), replace=False))

@@ -63,7 +63,7 @@ def main() -> None:
         except ValueError as e:  # a tabletop view whose object was hidden
             print(f"(skipping {name} {view}: {e})")
             continue
-        grid, frame = partial_to_grid(observed.points_cam)
+        grid, frame = partial_to_grid(observed.points_cam, depth_shift=completer.depth_shift)
         context = context_grids(observed.points_cam, frame, support_plane=observed.support_plane)
         samples = completer.predict_samples(grid, 8, context=context)
         plane = observed.support_plane

@@ -301,6 +301,7 @@ def cmd_generate(args) -> int:
             seed=args.seed,
             scenes=args.scenes,
             noise_scale=tuple(args.noise_scale),
+            depth_shift=args.depth_shift,
         ),
         objects=args.objects,
         workers=args.workers,
@@ -344,9 +345,10 @@ def cmd_average(args) -> int:
 
 def cmd_evaluate_grids(args) -> int:
     from .model import load_completer
-    from .train import evaluate_grids, load_grid_sets
+    from .train import check_placement, evaluate_grids, load_grid_sets
 
     completer = load_completer(args.weights)
+    check_placement(completer, args.data)
     sets = load_grid_sets(args.data)
     if args.kinds:
         import numpy as np
@@ -510,6 +512,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=(1.0, 1.0),
         metavar=("LO", "HI"),
         help="each view's depth error is the sensor model's times a factor drawn from LO-HI (default 1 1)",
+    )
+    s.add_argument(
+        "--depth-shift",
+        type=float,
+        default=0.0,
+        metavar="VOXELS",
+        help="move each object up to this many voxels towards the camera in its grid, so deep objects "
+        "stay inside it (default 0: the paper's placement; the shipped model uses 4)",
     )
     s.add_argument("--workers", type=int, default=None)
     s.add_argument("--backend", default="process", choices=BACKENDS)

@@ -64,6 +64,9 @@ class GenerationConfig:
     # Each view's depth error is the sensor model's times a factor drawn from this range
     # (DepthNoise.scaled): training on a range of sensors and surfaces, not on one model's.
     noise_scale: tuple[float, float] = (1.0, 1.0)
+    # Voxels the grid placement moves the object towards the camera (voxel.frame_for_points);
+    # 0 is the paper's placement.
+    depth_shift: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.noise_scale
@@ -239,7 +242,7 @@ def _sphere_examples(name: str, config: GenerationConfig):
         if len(measured) < 10 or len(ideal) < 10:
             yield "few_voxels"
             continue
-        x, frame = partial_to_grid(measured)
+        x, frame = partial_to_grid(measured, depth_shift=config.depth_shift)
         if x.sum() < MIN_X_VOXELS:
             yield "few_voxels"
             continue
@@ -268,7 +271,7 @@ def _tabletop_examples(name: str, config: GenerationConfig):
         if v is None:
             yield "no_view"
             continue
-        x, frame = partial_to_grid(v.points_cam)
+        x, frame = partial_to_grid(v.points_cam, depth_shift=config.depth_shift)
         if x.sum() < MIN_X_VOXELS:
             yield "few_voxels"
             continue
@@ -307,6 +310,13 @@ def generate(
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if (out_dir / "manifest.json").exists():
+        earlier = json.loads((out_dir / "manifest.json").read_text())["config"].get("depth_shift", 0.0)
+        if earlier != config.depth_shift:
+            raise ValueError(
+                f"{out_dir} holds views made with depth_shift={earlier:g}; adding views with "
+                f"depth_shift={config.depth_shift:g} would mix two grid placements (use another folder)"
+            )
     names = objects or [e.name for e in catalogue.catalogue()]
     tasks = [(n, str(out_dir), config) for n in names]
     t0 = time.perf_counter()
@@ -383,6 +393,7 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
             "seed": config.seed,
             "scenes": config.scenes,
             "noise_scale": list(config.noise_scale),
+            "depth_shift": config.depth_shift,
         },
         "camera": Intrinsics.kinect().to_dict(),
         "examples": examples,

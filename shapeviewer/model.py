@@ -220,6 +220,13 @@ class Completer:
         return float(self.meta.get("grid_level", LABEL_GRID_LEVELS[self.label]))
 
     @property
+    def depth_shift(self) -> float:
+        """Voxels its grid placement moves the object towards the camera (``meta["depth_shift"]``,
+        from the training data; 0, the paper's placement, for older weights). Inference must
+        voxelize with it: ``voxel.partial_to_grid(points, depth_shift=completer.depth_shift)``."""
+        return float(self.meta.get("depth_shift", 0.0))
+
+    @property
     def in_channels(self) -> int:
         """1: occupancy only; 3: occupancy and the two context channels."""
         return int(getattr(self.net, "in_channels", 1))

@@ -177,7 +177,7 @@ def complete_points(
     ids = list(range(len(segments_points_cam))) if segment_ids is None else list(segment_ids)
     t0 = time.perf_counter()
     pts = [check_segment(p) for p in segments_points_cam]
-    grids, frames = zip(*(partial_to_grid(p) for p in pts)) if pts else ((), ())
+    grids, frames = zip(*(partial_to_grid(p, depth_shift=completer.depth_shift) for p in pts)) if pts else ((), ())
     contexts = [context_grids(p, f, support_plane=support_plane) for p, f in zip(pts, frames)]
     t1 = time.perf_counter()
     probs = (

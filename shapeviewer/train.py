@@ -30,7 +30,7 @@ from .fileio import atomic_write
 from .generate import shard_files
 from .model import build, default_device, network_input, save_weights
 from .sim import catalogue
-from .voxel import GRID_DIM
+from .voxel import FRONT_MARGIN, GRID_DIM
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +151,34 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
                 np.zeros(0, dtype=object),
             )
     return out
+
+
+def data_depth_shift(data_dirs: list[str | Path]) -> float:
+    """The grid placement (``generate --depth-shift``, voxels) shared by the data folders.
+
+    A network learns its placement, so folders made with different ones cannot be pooled; a
+    folder without a manifest yet (still being generated) is not checked.
+    """
+    shifts = {}
+    for d in data_dirs:
+        manifest = Path(d) / "manifest.json"
+        if manifest.exists():
+            shifts[str(d)] = float(json.loads(manifest.read_text())["config"].get("depth_shift", 0.0))
+    if len(set(shifts.values())) > 1:
+        raise ValueError(f"the data folders use different grid placements (depth_shift): {shifts}")
+    return next(iter(shifts.values()), 0.0)
+
+
+def check_placement(completer, data_dirs: list[str | Path]) -> None:
+    """Raise a ValueError that says what to run if the data folders' grid placement is not the
+    network's (:attr:`~shapeviewer.model.Completer.depth_shift`): its scores there would mean nothing."""
+    shift = data_depth_shift(data_dirs)
+    if shift != completer.depth_shift:
+        raise ValueError(
+            f"{', '.join(map(str, data_dirs))} place objects {shift:g} voxels forward in the grid but the "
+            f"network ({completer.source}) was trained with {completer.depth_shift:g}: regenerate the views "
+            f"with `generate --depth-shift {completer.depth_shift:g}`"
+        )
 
 
 def _shard_files(data_dirs: str | Path | list) -> list[tuple[Path, Path]]:
@@ -342,6 +370,7 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
         log.info("resumed %s at step %d", run_dir, step)
         _truncate_log(run_dir / "log.csv", step)
     data_names = [str(d) for d in (data_dir if isinstance(data_dir, (list, tuple)) else [data_dir])]
+    depth_shift = data_depth_shift(data_names)
     (run_dir / "config.json").write_text(json.dumps({**asdict(cfg), "data": data_names}, indent=1))
 
     def meta() -> dict:
@@ -353,6 +382,7 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
             "batch_size": cfg.batch_size,
             "jaccard_weight": cfg.jaccard_weight,
             "label": cfg.label,
+            "depth_shift": depth_shift,
             "wall_seconds": wall,
             "examples": {s: len(v) for s, v in sets.items()},
         }
@@ -539,10 +569,17 @@ def model_card(completer, evaluation: dict, data_dir: str | Path | list) -> str:
         if completer.in_channels == 3
         else "occupancy only (the paper's input)"
     )
+    placement = (
+        "the paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels)"
+        if completer.depth_shift == 0
+        else f"the paper's placement moved up to {completer.depth_shift:g} voxels towards the camera "
+        f"(bounding-box centre at voxel (20, 20, 18 - up to {completer.depth_shift:g}), front at least "
+        f"{FRONT_MARGIN:g} voxels inside, largest side 32 voxels)"
+    )
     return f"""# Model card: `{completer.arch}` shape completion CNN
 
-- **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 grids in the
-  paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels). Input: {inputs}.
+- **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 grids in
+  {placement}. Input: {inputs}.
 - **Data**: folders {data}; examples: {ex.get("training_view", "?")} training views,
   {ex.get("holdout_view", "?")} holdout views, {ex.get("holdout_model", "?")} holdout-model views.
 - **Split**: holdout models are YCB 003_cracker_box, 006_mustard_bottle, 024_bowl, 035_power_drill and 15% of

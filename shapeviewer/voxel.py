@@ -28,6 +28,7 @@ from .geometry import o3d_tensor, raycasting_scene
 GRID_DIM = 40
 GRID_SPAN = 32
 CENTER_INDEX = np.array([20.0, 20.0, 18.0])
+FRONT_MARGIN = 2.0  # voxels kept empty in front of the visible box when the placement moves it forward
 
 
 @dataclass(frozen=True)
@@ -93,14 +94,27 @@ class GridFrame:
         return cls(np.asarray(d["center"], dtype=np.float64), float(d["voxel_size"]), int(d.get("dim", GRID_DIM)))
 
 
-def frame_for_points(points_cam: np.ndarray) -> GridFrame:
-    """The paper's grid placement for a partial view (camera-frame metres, (N, 3))."""
+def frame_for_points(points_cam: np.ndarray, *, depth_shift: float = 0.0) -> GridFrame:
+    """The grid placement for a partial view (camera-frame metres, (N, 3)).
+
+    With ``depth_shift=0`` this is the paper's placement: the visible box's centre at voxel
+    (20, 20, 18). That leaves the back of deep objects (cans, cups, fruit) outside the grid in
+    most tabletop views (``benchmarks/grid_room.py``), so a network can be trained with the
+    object moved up to ``depth_shift`` voxels towards the camera instead; the front of the
+    visible box stays at least ``FRONT_MARGIN`` voxels inside the grid. A network's placement is
+    in its weights (:attr:`shapeviewer.model.Completer.depth_shift`); inference must use it.
+    """
     pts = _finite_points(points_cam)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     extent = float((hi - lo).max())
     if extent <= 0:
         raise ValueError("cannot place a grid on a cloud with zero extent (all points identical)")
-    return GridFrame(center=(lo + hi) / 2.0, voxel_size=extent / GRID_SPAN)
+    if not (np.isfinite(depth_shift) and depth_shift >= 0):
+        raise ValueError(f"depth_shift must be a finite number of voxels >= 0, got {depth_shift}")
+    voxel_size = extent / GRID_SPAN
+    front = CENTER_INDEX[2] - (hi[2] - lo[2]) / voxel_size / 2.0
+    shift = min(float(depth_shift), max(0.0, front - FRONT_MARGIN))
+    return GridFrame(center=(lo + hi) / 2.0 + np.array([0.0, 0.0, shift * voxel_size]), voxel_size=voxel_size)
 
 
 def points_to_grid(points_cam: np.ndarray, frame: GridFrame) -> np.ndarray:
@@ -117,18 +131,19 @@ def points_to_grid(points_cam: np.ndarray, frame: GridFrame) -> np.ndarray:
     return grid.reshape((frame.dim,) * 3)
 
 
-def partial_to_grid(points_cam: np.ndarray) -> tuple[np.ndarray, GridFrame]:
-    """Voxelize a partial view into the CNN's 40^3 input grid with the paper's placement.
+def partial_to_grid(points_cam: np.ndarray, *, depth_shift: float = 0.0) -> tuple[np.ndarray, GridFrame]:
+    """Voxelize a partial view into the CNN's 40^3 input grid (the paper's placement by default).
 
     Args:
         points_cam: (N, 3) points in the camera optical frame (metres, x right, y down, z forward).
             Non-finite rows are ignored.
+        depth_shift: voxels to move the object towards the camera (:func:`frame_for_points`).
 
     Returns:
         ``(grid, frame)``: a (40, 40, 40) bool occupancy array indexed [x, y, z] and its
         :class:`GridFrame` (index = floor((p - center) / voxel_size + (20, 20, 18))).
     """
-    frame = frame_for_points(points_cam)
+    frame = frame_for_points(points_cam, depth_shift=depth_shift)
     return points_to_grid(points_cam, frame), frame
 
 

@@ -163,3 +163,10 @@ def test_a_reversed_or_negative_noise_range_is_refused_with_a_clear_error(tmp_pa
     code = main(["generate", "--out", str(out), "--objects", "ycb/025_mug", "--noise-scale", "3", "0.7"])
     assert code == 2 and "LO <= HI" in capsys.readouterr().err
     assert not out.exists()  # the folder the command would have made is not left behind
+
+
+def test_a_folder_refuses_views_in_another_grid_placement(generated):
+    out, cfg, _ = generated
+    with pytest.raises(ValueError, match="mix two grid placements"):
+        generate(out, GenerationConfig(views=6, seed=0, depth_shift=4), objects=["ycb/025_mug"], workers=1)
+    assert json.loads((out / "manifest.json").read_text())["config"]["depth_shift"] == 0

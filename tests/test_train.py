@@ -25,7 +25,8 @@ def tiny_data(tmp_path_factory):
     out = tmp_path_factory.mktemp("data")
     generate(
         out,
-        GenerationConfig(views=8, seed=1),
+        # In the shipped network's grid placement, so it can be scored on these views.
+        GenerationConfig(views=8, seed=1, depth_shift=load_completer().depth_shift),
         objects=["ycb/025_mug", "ycb/006_mustard_bottle", "random/001"],
         workers=1,
         progress=False,
@@ -159,6 +160,25 @@ def test_jaccard_of_grids():
     a[0, :10] = True
     b[0, 5:15] = True
     assert jaccard_grids(a, b)[0] == pytest.approx(5 / 15)
+
+
+def test_a_network_keeps_the_grid_placement_of_its_data(tiny_data, tmp_path, capsys):
+    other = 4.0 if load_completer().depth_shift == 0 else 0.0
+    moved = tmp_path / "moved"
+    generate(
+        moved, GenerationConfig(views=4, seed=1, depth_shift=other), objects=["ycb/025_mug"], workers=1, progress=False
+    )
+    cfg = TrainConfig(steps=2, batch_size=2, eval_every=2, eval_views=2)
+    with pytest.raises(ValueError, match="different grid placements"):
+        train([tiny_data, moved], tmp_path / "mixed", cfg, progress=False)
+    train(moved, tmp_path / "run", cfg, progress=False)
+    c = load_completer(tmp_path / "run" / "best_loss.pt")
+    assert c.depth_shift == other
+    # Scoring it on views in another placement is refused with the command that fixes it.
+    from shapeviewer.cli import main
+
+    assert main(["evaluate-grids", "--data", str(tiny_data), "--weights", str(tmp_path / "run" / "best_loss.pt")]) != 0
+    assert f"generate --depth-shift {other:g}" in capsys.readouterr().err
 
 
 def test_shipped_weights_beat_the_input_alone(tiny_data):

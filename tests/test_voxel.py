@@ -116,3 +116,21 @@ def test_points_outside_the_grid_are_dropped():
     frame = GridFrame(np.zeros(3), 0.01)
     g = points_to_grid(np.array([[0.0, 0, 0], [10.0, 0, 0], [-10, 0, 0]]), frame)
     assert g.sum() == 1
+
+
+def test_depth_shift_moves_the_object_towards_the_camera_but_keeps_its_front_inside():
+    rng = np.random.default_rng(2)
+    shallow = rng.uniform([-0.05, -0.03, 0.90], [0.05, 0.03, 0.95], size=(3000, 3))  # 16 voxels deep
+    _, paper = partial_to_grid(shallow)
+    _, moved = partial_to_grid(shallow, depth_shift=4)
+    centre = ((shallow.min(0) + shallow.max(0)) / 2)[None]
+    assert moved.voxel_size == paper.voxel_size
+    np.testing.assert_allclose(moved.to_grid(centre)[0], [20, 20, 14], atol=1e-9)
+    # A cloud as deep as it is wide already fills the grid from voxel 2: it stays where it is.
+    deep = rng.uniform([-0.05, -0.05, 0.90], [0.05, 0.05, 1.00], size=(3000, 3))
+    _, paper = partial_to_grid(deep)
+    grid, moved = partial_to_grid(deep, depth_shift=4)
+    np.testing.assert_allclose(moved.center, paper.center)
+    assert np.argwhere(grid)[:, 2].min() == 2
+    with pytest.raises(ValueError, match="depth_shift"):
+        partial_to_grid(shallow, depth_shift=-1)

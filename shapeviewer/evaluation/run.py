@@ -131,7 +131,7 @@ def evaluate_view(
     def cnn_output():
         if not cnn:
             t0 = time.perf_counter()
-            x, frame = partial_to_grid(points)
+            x, frame = partial_to_grid(points, depth_shift=completer.depth_shift)
             context = context_grids(points, frame, support_plane=plane)
             probs = completer.predict(x, context=context)
             t1 = time.perf_counter()
