@@ -84,9 +84,10 @@ def test_bad_input_says_what_is_wrong(can_view):
 
 def test_the_network_never_fills_space_known_to_be_empty(can_view):
     v = can_view
-    grid, frame = partial_to_grid(v.points_cam)
+    c = load_completer()
+    grid, frame = partial_to_grid(v.points_cam, depth_shift=c.depth_shift)
     ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
-    p = load_completer().predict(grid, context=ctx)
+    p = c.predict(grid, context=ctx)
     assert ctx.any() and not (p[ctx.any(axis=0)] > 0).any()
 
 
@@ -159,3 +160,22 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
         np.testing.assert_allclose(first.vertices, fast.vertices)
         for name in e["samples"]["meshes"]:
             assert name is not None and trimesh.load(out / name).is_watertight
+
+
+def test_segments_are_voxelized_in_the_networks_grid_placement(can_view):
+    """A network trained with the object moved towards the camera (``generate --depth-shift``)
+    gets its input the same way: the placement travels with the weights."""
+    from dataclasses import replace
+
+    base = load_completer()
+    centres = []
+    for shift in (0.0, 4.0):
+        net = replace(base, meta={**base.meta, "depth_shift": shift})
+        (c,) = complete_points([can_view.points_cam], net, support_plane=can_view.plane_cam)
+        expected = partial_to_grid(can_view.points_cam, depth_shift=shift)[1]
+        np.testing.assert_allclose(c.frame.center, expected.center)
+        centres.append(c.frame.center)
+    # Moved along the viewing ray only, and no further than keeps the visible front inside the grid.
+    dz = (centres[1] - centres[0]) / c.frame.voxel_size
+    assert dz[0] == dz[1] == 0 and 0 < dz[2] <= 4
+    assert np.argwhere(c.grid_in)[:, 2].min() >= 1

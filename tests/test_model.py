@@ -70,10 +70,10 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     from shapeviewer.sim.tabletop import render_tabletop_view
     from shapeviewer.voxel import context_grids, partial_to_grid
 
-    v = render_tabletop_view("ycb/025_mug", 5, seed=3)
-    grid, frame = partial_to_grid(v.points_cam)
-    ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     c = load_completer()
+    v = render_tabletop_view("ycb/025_mug", 5, seed=3)
+    grid, frame = partial_to_grid(v.points_cam, depth_shift=c.depth_shift)
+    ctx = context_grids(v.points_cam, frame, support_plane=v.plane_cam)
     samples = c.predict_samples(grid, 8, context=ctx)
     assert samples.shape == (8, 40, 40, 40) and samples.dtype == np.float32
     assert np.array_equal(samples[0], c.predict(grid, context=ctx))  # sample 0 is the best estimate
@@ -82,7 +82,7 @@ def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     seen_side, unseen_side = [], []
     for view in (5, 6, 7):
         w = render_tabletop_view("ycb/025_mug", view, seed=3)
-        g, f = partial_to_grid(w.points_cam)
+        g, f = partial_to_grid(w.points_cam, depth_shift=c.depth_shift)
         s = c.predict_samples(g, 8, context=context_grids(w.points_cam, f, support_plane=w.plane_cam))
         spread = sample_spread(s)
         active = (s > 0.05).any(axis=0)
