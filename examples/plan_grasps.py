@@ -27,8 +27,7 @@ if __name__ == "__main__":
     mesh.export(out / "object_world.ply")
 
     # Without budget_seconds planning is deterministic for a seed; the budget only caps a slow machine.
-    # Ten grasps, of which the best three are kept: the planner lift-checks only the grasps it returns,
-    # and on a large box (this carton is 11 cm across) few of the top three by epsilon hold it.
+    # Ten grasps, best three kept: the planner lift-checks only what it returns, and few hold an 11 cm carton.
     result = sv.plan_grasps(mesh, hand="barrett", n_grasps=10, seed=0, budget_seconds=40)
     stats = result.stats
     best = result.grasps[:3]

@@ -19,6 +19,7 @@ import io
 import json
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -153,7 +154,7 @@ def load_grid_sets(data_dirs: str | Path | list) -> dict[str, GridSet]:
     return out
 
 
-def data_depth_shift(data_dirs: list[str | Path]) -> float:
+def data_depth_shift(data_dirs: Sequence[str | Path]) -> float:
     """The grid placement (``generate --depth-shift``, voxels) shared by the data folders.
 
     A network learns its placement, so folders made with different ones cannot be pooled; a
@@ -169,7 +170,7 @@ def data_depth_shift(data_dirs: list[str | Path]) -> float:
     return next(iter(shifts.values()), 0.0)
 
 
-def check_placement(completer, data_dirs: list[str | Path]) -> None:
+def check_placement(completer, data_dirs: Sequence[str | Path]) -> None:
     """Raise a ValueError that says what to run if the data folders' grid placement is not the
     network's (:attr:`~shapeviewer.model.Completer.depth_shift`): its scores there would mean nothing."""
     shift = data_depth_shift(data_dirs)
