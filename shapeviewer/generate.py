@@ -310,13 +310,12 @@ def generate(
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    if (out_dir / "manifest.json").exists():
-        earlier = json.loads((out_dir / "manifest.json").read_text())["config"].get("depth_shift", 0.0)
-        if earlier != config.depth_shift:
-            raise ValueError(
-                f"{out_dir} holds views made with depth_shift={earlier:g}; adding views with "
-                f"depth_shift={config.depth_shift:g} would mix two grid placements (use another folder)"
-            )
+    earlier = folder_depth_shift(out_dir)
+    if earlier is not None and earlier != config.depth_shift:
+        raise ValueError(
+            f"{out_dir} holds views made with depth_shift={earlier:g}; adding views with "
+            f"depth_shift={config.depth_shift:g} would mix two grid placements (use another folder)"
+        )
     names = objects or [e.name for e in catalogue.catalogue()]
     tasks = [(n, str(out_dir), config) for n in names]
     t0 = time.perf_counter()
@@ -367,6 +366,15 @@ def shard_files(out_dir: str | Path) -> list[Path]:
     """The finished shards of a ``generate`` folder, sorted (a folder still being filled gives the
     shards written so far; an older version's interrupted ``*.tmp.npz`` partials are skipped)."""
     return sorted(p for p in (Path(out_dir) / "shards").glob("*.npz") if not p.name.endswith(".tmp.npz"))
+
+
+def folder_depth_shift(out_dir: str | Path) -> float | None:
+    """The grid placement (voxels, :attr:`GenerationConfig.depth_shift`) a ``generate`` folder's
+    manifest records: 0 for folders from before the option, None before a manifest is written."""
+    manifest = Path(out_dir) / "manifest.json"
+    if not manifest.exists():
+        return None
+    return float(json.loads(manifest.read_text())["config"].get("depth_shift", 0.0))
 
 
 def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:

@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 
 from .fileio import atomic_write
-from .generate import shard_files
+from .generate import folder_depth_shift, shard_files
 from .model import build, default_device, network_input, save_weights
 from .sim import catalogue
 from .voxel import FRONT_MARGIN, GRID_DIM
@@ -160,11 +160,8 @@ def data_depth_shift(data_dirs: Sequence[str | Path]) -> float:
     A network learns its placement, so folders made with different ones cannot be pooled; a
     folder without a manifest yet (still being generated) is not checked.
     """
-    shifts = {}
-    for d in data_dirs:
-        manifest = Path(d) / "manifest.json"
-        if manifest.exists():
-            shifts[str(d)] = float(json.loads(manifest.read_text())["config"].get("depth_shift", 0.0))
+    recorded = {str(d): folder_depth_shift(d) for d in data_dirs}
+    shifts = {d: s for d, s in recorded.items() if s is not None}
     if len(set(shifts.values())) > 1:
         raise ValueError(f"the data folders use different grid placements (depth_shift): {shifts}")
     return next(iter(shifts.values()), 0.0)
