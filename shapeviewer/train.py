@@ -467,7 +467,8 @@ def average_weights(paths: list[str | Path], out: str | Path, *, note: str | Non
     with ``averaged_from`` (the files' names) and ``note`` as its ``schedule`` when given.
 
     Raises:
-        ValueError: fewer than two files, or files of different architectures or shapes.
+        ValueError: fewer than two files, or files of different architectures, shapes or grid
+            placements (``meta["depth_shift"]``: the mean of two placements' networks answers neither).
     """
     if len(paths) < 2:
         raise ValueError("average at least two weights files")
@@ -477,6 +478,12 @@ def average_weights(paths: list[str | Path], out: str | Path, *, note: str | Non
         same = st["arch"] == first["arch"] and st["state_dict"].keys() == first["state_dict"].keys()
         if not same or any(v.shape != first["state_dict"][k].shape for k, v in st["state_dict"].items()):
             raise ValueError(f"{p} is not the same network as {paths[0]} (architecture or shapes differ)")
+        shifts = [s.get("meta", {}).get("depth_shift", 0.0) for s in (first, st)]
+        if shifts[0] != shifts[1]:
+            raise ValueError(
+                f"{p} was trained with the object {shifts[1]:g} voxels forward in the grid, {paths[0]} with "
+                f"{shifts[0]:g} (generate --depth-shift): their mean would answer neither placement"
+            )
     avg = {}
     for k, v in first["state_dict"].items():
         if v.is_floating_point():

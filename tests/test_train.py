@@ -246,5 +246,9 @@ def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys
     save_weights(tmp_path / "wide.pt", build("unet3d", width=24), "unet3d", {})
     with pytest.raises(ValueError, match="not the same network"):
         average_weights([tmp_path / "0.pt", tmp_path / "wide.pt"], tmp_path / "x.pt")
+    # Nor can a network trained in another grid placement (generate --depth-shift).
+    save_weights(tmp_path / "moved.pt", nets[1], "unet3d", {"label": "fraction", "depth_shift": 4.0})
+    with pytest.raises(ValueError, match="voxels forward"):
+        average_weights([tmp_path / "0.pt", tmp_path / "moved.pt"], tmp_path / "x.pt")
     assert main(["average", str(tmp_path / "0.pt"), "--out", str(tmp_path / "x.pt")]) != 0
     assert "at least two" in capsys.readouterr().err and not (tmp_path / "x.pt").exists()
