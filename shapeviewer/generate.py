@@ -316,6 +316,8 @@ def generate(
             f"{out_dir} holds views made with depth_shift={earlier:g}; adding views with "
             f"depth_shift={config.depth_shift:g} would mix two grid placements (use another folder)"
         )
+    if earlier is None:  # record the placement before the first shard, so an interrupted run is guarded too
+        write_manifest(out_dir, config)
     names = objects or [e.name for e in catalogue.catalogue()]
     tasks = [(n, str(out_dir), config) for n in names]
     t0 = time.perf_counter()
@@ -407,5 +409,5 @@ def write_manifest(out_dir: str | Path, config: GenerationConfig) -> dict:
         "examples": examples,
         "shards": shards,
     }
-    (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    atomic_write(out_dir / "manifest.json", json.dumps(manifest, indent=1))
     return manifest

@@ -170,3 +170,18 @@ def test_a_folder_refuses_views_in_another_grid_placement(generated):
     with pytest.raises(ValueError, match="mix two grid placements"):
         generate(out, GenerationConfig(views=6, seed=0, depth_shift=4), objects=["ycb/025_mug"], workers=1)
     assert json.loads((out / "manifest.json").read_text())["config"]["depth_shift"] == 0
+
+
+def test_an_interrupted_first_run_still_guards_its_placement(tmp_path, monkeypatch):
+    import shapeviewer.generate as gen
+
+    def interrupted(task):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "gen"
+    monkeypatch.setattr(gen, "_task", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        generate(out, GenerationConfig(views=2, seed=0, depth_shift=4), objects=["ycb/025_mug"], workers=1)
+    assert gen.folder_depth_shift(out) == 4  # recorded before the first shard
+    with pytest.raises(ValueError, match="mix two grid placements"):
+        generate(out, GenerationConfig(views=2, seed=0), objects=["ycb/025_mug"], workers=1)
