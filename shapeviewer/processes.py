@@ -29,6 +29,9 @@ T = TypeVar("T")
 POLL_SECONDS = 0.1  # how often a waiting job looks at its cancel flag
 CANCEL_GRACE_SECONDS = 5.0  # a cancelled job not answering within this is killed with its worker
 STOP_SECONDS = 0.2  # what shutdown waits for a worker to leave before killing it (it keeps no state)
+# What a kill waits for the killed process to be reaped: SIGKILL cannot be refused, so this only
+# bounds a kernel that is slow to end it on a loaded machine (a reaped child leaves no zombie).
+REAP_SECONDS = 5.0
 
 
 class JobCancelled(Exception):
@@ -163,7 +166,7 @@ class _Worker:
                 os.killpg(process.pid, signal.SIGKILL)
             except (ProcessLookupError, PermissionError):  # gone, or not yet in its own group
                 process.kill()
-            process.join(STOP_SECONDS)
+            process.join(REAP_SECONDS)
 
     def stop(self) -> None:
         """Ask the process to leave; kill it if it does not within :data:`STOP_SECONDS`."""
