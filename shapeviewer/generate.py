@@ -311,13 +311,13 @@ def generate(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     earlier = folder_depth_shift(out_dir)
-    if earlier is not None and earlier != config.depth_shift:
+    if earlier is None:  # record the placement before the first shard, so an interrupted run is guarded too
+        write_manifest(out_dir, config)
+    elif earlier != config.depth_shift:
         raise ValueError(
             f"{out_dir} holds views made with depth_shift={earlier:g}; adding views with "
             f"depth_shift={config.depth_shift:g} would mix two grid placements (use another folder)"
         )
-    if earlier is None:  # record the placement before the first shard, so an interrupted run is guarded too
-        write_manifest(out_dir, config)
     names = objects or [e.name for e in catalogue.catalogue()]
     tasks = [(n, str(out_dir), config) for n in names]
     t0 = time.perf_counter()
