@@ -11,9 +11,11 @@ Everything is in the camera optical frame (metres; x right, y down, z forward):
    (by default ``min_height`` is :func:`table_band`: just above the table's own depth noise);
 4. voxel-downsample them, join voxel centroids closer than ``cluster_tolerance`` (Euclidean
    clustering is the connected components of that graph) and give every point its voxel's cluster;
-5. drop each cluster's flying pixels (:func:`flying_pixels`), then the clusters of fewer than
-   ``min_points`` points or whose bounding box is longer than ``max_extent`` (walls, furniture),
-   and number the rest left to right in the image.
+5. drop each cluster's flying pixels (:func:`flying_pixels`) and cluster what is left again: a
+   depth camera's silhouette pixels trail off an object towards what lies behind it, and bridge
+   the gap to a neighbour 3-12 cm away;
+6. drop the clusters of fewer than ``min_points`` points or whose bounding box is longer than
+   ``max_extent`` (walls, furniture), and number the rest left to right in the image.
 
 The RANSAC is our own vectorised numpy one: Open3D's ``segment_plane`` runs its iterations on
 several threads and returns different planes for the same seed.
@@ -54,7 +56,8 @@ PART_GAP = 0.1  # m
 # (RealSense-style sensors make many). They trail off the surface in ones and twos, while a point
 # on any surface, even at its edge or on a one-pixel-wide handle, has neighbours within a few point
 # spacings. Removing them from the segments brought completions of RealSense views up to those of
-# Kinect views (model card).
+# Kinect views (model card); clustering again without them splits an object from the neighbour they
+# joined it to (3 of 200 tabletop test views had a neighbour in the target's segment).
 FLYING_RADIUS = 3.0  # neighbourhood radius, in the segment's median nearest-neighbour distances
 FLYING_NEIGHBOURS = 6  # fewer other points than this within it: a flying pixel
 # Up to this many planes are tried when looking for a horizontal one (a wall may be larger).
@@ -254,7 +257,7 @@ def segment_scene(
     lap("downsample")
     labels = _euclidean_clusters(centroids, cluster_tolerance)[inverse]
     lap("cluster")
-    segments = _make_segments(idx, pts, labels, min_points, max_extent)
+    segments = _make_segments(idx, pts, labels, min_points, max_extent, inverse, centroids, cluster_tolerance)
     lap("segments")
     timings["total"] = time.perf_counter() - t0
     return Segmentation(segments, plane, T_world_cam, timings, table, min_height)
@@ -504,23 +507,37 @@ def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:
 
 
 def _make_segments(
-    idx: np.ndarray, points: np.ndarray, labels: np.ndarray, min_points: int, max_extent: float
+    idx: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    min_points: int,
+    max_extent: float,
+    inverse: np.ndarray,
+    centroids: np.ndarray,
+    tolerance: float,
 ) -> list[Segment]:
-    """Segments of the clusters that pass the size tests (after their :func:`flying_pixels` are
-    dropped), numbered by the image column of their centroid."""
+    """Segments of the clusters (``labels``: each point's) without their :func:`flying_pixels`,
+    each split again into Euclidean clusters of its voxels (``inverse``: each point's voxel,
+    ``centroids``: the voxels' mean points) where only voxels of flying pixels joined it to a
+    neighbour; the parts that pass the size tests, numbered by the image column of their centroid."""
     counts = np.bincount(labels, minlength=1)
     kept = []
     for label in np.flatnonzero(counts >= max(min_points, 1)):
         members = np.flatnonzero(labels == label)  # few clusters pass: cheaper than sorting all labels
-        pts = points[members]
-        if float((pts.max(axis=0) - pts.min(axis=0)).max()) > max_extent:
-            continue
-        members = members[~flying_pixels(pts)]
-        pts = points[members]
-        size = float((pts.max(axis=0) - pts.min(axis=0)).max())
-        if len(members) >= max(min_points, 1):
-            centre = pts.mean(axis=0)
-            kept.append((centre[0] / centre[2], -len(members), idx[members], pts, size))
+        voxels = inverse[members]
+        solid = ~flying_pixels(points[members])
+        members, solid_voxels = members[solid], voxels[solid]
+        kept_voxels, voxel_of = np.unique(solid_voxels, return_inverse=True)
+        parts = np.zeros(len(members), dtype=np.int64)
+        if len(kept_voxels) < len(np.unique(voxels)):  # voxels of flying pixels alone may have bridged a gap
+            parts = _euclidean_clusters(centroids[kept_voxels], tolerance)[voxel_of.reshape(-1)]
+        for part in np.flatnonzero(np.bincount(parts, minlength=1) >= max(min_points, 1)):
+            part_members = members[parts == part]
+            pts = points[part_members]
+            size = float((pts.max(axis=0) - pts.min(axis=0)).max())
+            if size <= max_extent:
+                centre = pts.mean(axis=0)
+                kept.append((centre[0] / centre[2], -len(part_members), idx[part_members], pts, size))
     kept.sort(key=lambda k: k[:2])
     return [
         Segment(

@@ -245,12 +245,17 @@ def evaluate_grids(
     batch: int = 32,
     label: str = "solid",
     level: float = 0.5,
+    samples: int = 1,
 ) -> dict:
     """Mean Jaccard at 40^3 per set, of the voxels above ``level`` and of the input alone, against
     the ground truth of ``label`` (:meth:`GridSet.truth`: ``solid``, the paper's Y, or the label a
     network was trained on), and the network's per shape kind (``by_kind``: kind -> {"jaccard",
     "views"}, :func:`catalogue.shape_kind`). The paper's metric is ``label="solid"`` at the
     network's :attr:`~shapeviewer.model.Completer.grid_level`; training scores its own label at 0.5.
+
+    ``samples``: 1 scores the network's answer (:meth:`~shapeviewer.model.Completer.predict`, the
+    fast mesh's occupancy); n > 1 the mean of its answers for the first n mirrored views
+    (:meth:`~shapeviewer.model.Completer.predict_samples`; 8 is the occupancy the detailed mesh meshes).
 
     Uses a seeded sample of at most ``max_views`` views per set.
     """
@@ -269,7 +274,10 @@ def evaluate_grids(
         for i in range(0, len(idx), batch):
             x, _, ctx = gs.grids(idx[i : i + batch])
             y = gs.truth(idx[i : i + batch], label)
-            p = completer.predict(x, context=ctx)
+            if samples > 1:
+                p = completer.predict_samples(x, samples, context=ctx).mean(axis=0)
+            else:
+                p = completer.predict(x, context=ctx)
             js.append(jaccard_grids(p > level, y))
             js_in.append(jaccard_grids(x, y))
         jac = np.concatenate(js)

@@ -182,6 +182,21 @@ def test_flying_pixels_are_the_stray_points_behind_a_silhouette() -> None:
     assert not flying_pixels(face).any() and not flying_pixels(np.zeros((3, 3))).any()
 
 
+def test_flying_pixels_do_not_join_an_object_to_its_neighbour_behind() -> None:
+    """A box face at 0.70 m and a neighbour's face at 0.76 m beside it in the image (2 mm pixels):
+    the front face's edge pixels took depths between the two, a sparse sheet that bridges the 6 cm
+    gap closer than the clustering tolerance. Two segments, each without those pixels."""
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(-0.06, 0.0, 0.002), np.arange(-0.05, 0.05, 0.002))
+    front = np.stack([u.ravel(), v.ravel(), np.full(u.size, 0.70)], -1)
+    back = np.stack([-u.ravel() + 0.002, v.ravel(), np.full(u.size, 0.76)], -1)
+    rows = np.arange(-0.05, 0.05, 0.002)
+    flying = np.stack([np.zeros(len(rows)), rows, rng.uniform(0.705, 0.755, len(rows))], -1)
+    seg = segment_scene(np.concatenate([front, back, flying]))
+    assert sorted(len(s.indices) for s in seg.segments) == [len(front), len(back)]
+    assert {int(s.indices.min()) for s in seg.segments} == {0, len(front)}
+
+
 def test_table_frame_is_a_rigid_table_aligned_frame() -> None:
     n = np.array([0.1, -0.8, -0.5])
     n /= np.linalg.norm(n)
@@ -282,8 +297,9 @@ def test_milk_clorox_floor_removed_and_objects_whole(milk_clorox: Capture) -> No
         [obj] = _segments_inside(seg, box, 5000)
         assert 0.15 < obj.extent.max() < 0.30
     for s in seg.segments:
-        assert 0.05 <= s.extent.max() <= 0.35, s.label
-    # everything else is legs and casters of the office chair at the top edge, 1.5-2 m away
+        assert 0.05 <= s.extent.max() <= (0.35 if s.centroid[2] < 1.4 else 0.5), s.label
+    # everything else is legs and casters of the office chair at the top edge, 1.5-2 m away (a leg
+    # with its caster is up to 46 cm long: the flying pixels that made it longer are gone)
     others = [s for s in seg.segments if len(s.indices) < 5000]
     assert len(seg.segments) == 3 + len(others)
     assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(seg.segments, _pixel_boxes(seg)) if s in others)

@@ -225,6 +225,30 @@ def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
     assert "no views of kinds teapot" in capsys.readouterr().err
 
 
+def test_evaluate_grids_scores_the_mean_of_the_mirrored_answers(tiny_data, capsys):
+    """``samples=8`` scores the occupancy the detailed mesh meshes (the mean of the 8 mirrored
+    answers), view by view, and it completes these views at least as well as the single answer."""
+    from shapeviewer.cli import main
+
+    c = load_completer()
+    sets = load_grid_sets(tiny_data)
+    gs = sets["training_view"]
+    x, _, ctx = gs.grids(np.arange(len(gs)))
+    mean = c.predict_samples(x, 8, context=ctx).mean(axis=0)
+    expected = jaccard_grids(mean > c.grid_level, gs.truth(np.arange(len(gs)), "solid")).mean()
+    r8 = evaluate_grids(c, sets, max_views=50, level=c.grid_level, samples=8)
+    r1 = evaluate_grids(c, sets, max_views=50, level=c.grid_level)
+    assert r8["training_view"]["jaccard"] == pytest.approx(expected)
+    assert r8["training_view"]["jaccard"] != r1["training_view"]["jaccard"]
+    views = sum(v["views"] for v in r1.values())
+    assert (
+        sum(v["jaccard"] * v["views"] for v in r8.values()) / views
+        >= sum(v["jaccard"] * v["views"] for v in r1.values()) / views - 0.01
+    )
+    assert main(["evaluate-grids", "--data", str(tiny_data), "--samples", "8"]) == 0
+    assert "mean of 8 mirrored answers" in capsys.readouterr().out
+
+
 def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys):
     from shapeviewer.cli import main
     from shapeviewer.model import build, save_weights
