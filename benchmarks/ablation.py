@@ -3,9 +3,9 @@
 mean surface distance against the true mesh.
 
 Variants (each a weights file, with or without the context):
-  * ``<label>``: the CNN reads the context and known-empty space is zeroed (the app's path: the
-    detailed mesh meshes the mean of the 8 mirrored answers, ``pipeline.completion_detailed_mesh``);
-  * ``<label>-noctx``: occupancy only, no zeroing (how the paper's pipeline ran);
+  * ``<label>``: the CNN reads the context and known-empty space is zeroed, and both meshes mesh
+    the mean of its 8 mirrored answers (the app's path, ``pipeline.complete_points``);
+  * ``<label>-noctx``: occupancy only, no zeroing, one answer (how the paper's pipeline ran);
   * ``Hull``: the convex hull of the segment's points.
 
     python benchmarks/ablation.py --weights old=static_assets/weights/unet3d.pt new=runs/ctx3/best_holdout_model.pt \
@@ -75,8 +75,8 @@ def main() -> None:
             if not args.no_ablation:
                 variants.append((f"{label}-noctx", None, None))
             for vname, context, plane in variants:
-                p = c.predict(grid, context=context)
-                mean = c.predict_samples(grid, context=context).mean(axis=0) if context is not None else p
+                # The app's output: the mean of the 8 mirrored answers; the paper's: one answer.
+                p = c.predict_samples(grid, context=context).mean(axis=0) if context is not None else c.predict(grid)
                 runs = [("fast", "vote")] if "fast" in modes else []
                 runs += [("detailed", u) for u in args.upsample] if "detailed" in modes else []
                 levels = args.levels or [c.mesh_level]
@@ -86,7 +86,7 @@ def main() -> None:
                             fast_mesh(p, frame, level=level)
                             if mode == "fast"
                             else detailed_mesh(
-                                mean, frame, v.points_cam, support_plane=plane, level=level, upsample=upsample
+                                p, frame, v.points_cam, support_plane=plane, level=level, upsample=upsample
                             )
                         )
                         j, d = score(mesh, v.truth_cam)

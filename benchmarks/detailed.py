@@ -7,10 +7,10 @@ from the camera) and the organized real captures in ../shared/data/real; with ``
 objects on a table seen from 0.35 and 0.6 m by a 1280x720 RealSense-like camera (fx 910 px): clouds
 of 20k-330k points, up to 9 times denser than a Kinect's at 1 m.
 
-For every segment that can be completed: voxelize + CNN (:func:`pipeline.complete_points`), then
-:func:`pipeline.completion_detailed_mesh` ``--repeats`` times (median per segment; each time the 8
-mirrored CNN passes it meshes the mean of, then Algorithm 1). End to end = voxelize + CNN + those,
-what the viewer's "Detailed mesh" button costs on a segment not yet completed.
+For every segment that can be completed: voxelize + CNN (:func:`pipeline.complete_points`: the 8
+mirrored passes whose mean is the output), then :func:`pipeline.completion_detailed_mesh`
+``--repeats`` times (median per segment). End to end = voxelize + CNN + Algorithm 1, what the
+viewer's "Detailed mesh" button costs on a segment not yet completed.
 Printed: medians over segments of each step of Algorithm 1 and of the total, with the segment's
 distance from the camera.
 
@@ -34,7 +34,6 @@ from pipeline import load_captures  # noqa: E402  (benchmarks/pipeline.py)
 import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
 
 STEPS = (
-    ("samples", "CNN, 8 mirrored views"),
     ("density", "density ratio"),
     ("upsample", "up-sample CNN output"),
     ("merge", "merge + carve"),
@@ -108,14 +107,13 @@ def main(argv: list[str] | None = None) -> int:
         if c.fast_mesh is None:
             continue
         if not warm:  # the first torch call of the solver pays one-off set-up costs
-            completion_detailed_mesh(c, points, completer)
+            completion_detailed_mesh(c, points)
             warm = True
         runs = []
         for _ in range(args.repeats):
             steps: dict = {}
-            c.samples = None  # as for a segment just completed
             t0 = time.perf_counter()
-            completion_detailed_mesh(c, points, completer, timings=steps)
+            completion_detailed_mesh(c, points, timings=steps)
             runs.append((time.perf_counter() - t0, steps))
         seconds, steps = sorted(runs, key=lambda r: r[0])[len(runs) // 2]
         for key, _ in STEPS:

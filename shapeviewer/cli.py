@@ -7,7 +7,7 @@ shapeviewer objects
 shapeviewer generate --out DIR [--views N] [--backend process|ray]
 shapeviewer train --data DIR --run DIR [--steps N]
 shapeviewer average A.pt B.pt --out C.pt
-shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...] [--samples 8]
+shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...] [--samples 1]
 shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
                      [--workers N] [--backend process|ray]
                      [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]
@@ -171,15 +171,16 @@ def cmd_complete(args) -> int:
         (out / f"segment_{s.id}_points.ply").write_bytes(
             export.points_ply_bytes(s.points_cam, frame=args.frame, T_world_cam=T_world_cam)
         )
-        if args.samples:
-            c.samples = completer.predict_samples(c.grid_in, args.samples, context=c.context)
+        samples = c.samples[: args.samples] if args.samples else None
         (out / f"segment_{s.id}_grids.npz").write_bytes(
             export.grids_npz_bytes(
-                c.grid_in, c.probabilities, c.frame, T_world_cam, grid_out=c.grid_out, samples=c.samples
+                c.grid_in, c.probabilities, c.frame, T_world_cam, grid_out=c.grid_out, samples=samples
             )
         )
-        if c.samples is not None:
-            e["samples"] = _write_sample_meshes(c, out / f"segment_{s.id}", args.format, args.frame, T_world_cam)
+        if samples is not None:
+            e["samples"] = _write_sample_meshes(
+                c, samples, out / f"segment_{s.id}", args.format, args.frame, T_world_cam
+            )
         if c.fast_mesh is None:
             e["error"] = c.error
             continue
@@ -194,7 +195,7 @@ def cmd_complete(args) -> int:
         if args.mode == "detailed":
             steps: dict[str, float] = {}
             t0 = time.perf_counter()
-            mesh = completion_detailed_mesh(c, s.points_cam, completer, timings=steps)
+            mesh = completion_detailed_mesh(c, s.points_cam, timings=steps)
             c.timings["detailed_mesh"] = time.perf_counter() - t0
             e["detailed_steps"] = steps
             path = out / f"segment_{s.id}_detailed.{args.format}"
@@ -212,18 +213,19 @@ def cmd_complete(args) -> int:
     return 0
 
 
-def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.ndarray) -> dict:
-    """Write the fast mesh of each of a completion's samples (``<stem>_sample_<k>.<fmt>``); returns
-    the report entry: the files (None for an empty sample) and the viewer's confidence figures
+def _write_sample_meshes(c, samples: np.ndarray, stem: Path, fmt: str, frame: str, T_world_cam: np.ndarray) -> dict:
+    """Write the fast mesh of each of ``samples``, the first of completion ``c``'s sample
+    completions (``<stem>_sample_<k>.<fmt>``); returns the report entry: the files (None for an
+    empty sample) and the viewer's confidence figures over them
     (:func:`~shapeviewer.pipeline.confidence_figures`): the mean spread on the seen and the unseen
     side, and the share of completed voxels that are a guess."""
     from . import export
+    from .model import sample_spread
     from .pipeline import confidence_figures
     from .reconstruct import fast_mesh
 
-    assert c.samples is not None
     files: list[str | None] = []
-    for k, probabilities in enumerate(c.samples):
+    for k, probabilities in enumerate(samples):
         try:
             mesh = fast_mesh(probabilities, c.frame, level=c.mesh_level)
         except ValueError:  # an empty sample: nothing to mesh
@@ -232,8 +234,8 @@ def _write_sample_meshes(c, stem: Path, fmt: str, frame: str, T_world_cam: np.nd
         path = stem.with_name(f"{stem.name}_sample_{k}.{fmt}")
         path.write_bytes(export.mesh_bytes(mesh, fmt, frame, T_world_cam))
         files.append(path.name)
-    sides, guessed = confidence_figures(c.grid_in, c.solid, c.spread)
-    return {"n": len(c.samples), "meshes": files, "mean_spread": dict(sides), "guessed_share": guessed}
+    sides, guessed = confidence_figures(c.grid_in, c.solid, sample_spread(samples))
+    return {"n": len(samples), "meshes": files, "mean_spread": dict(sides), "guessed_share": guessed}
 
 
 def cmd_grasp(args) -> int:
@@ -365,7 +367,7 @@ def cmd_evaluate_grids(args) -> int:
     r = evaluate_grids(
         completer, sets, max_views=args.views, seed=args.seed, level=completer.grid_level, samples=args.samples
     )
-    answer = "output grid" if args.samples == 1 else f"mean of {args.samples} mirrored answers"
+    answer = "one answer (the view as seen)" if args.samples == 1 else f"mean of {args.samples} mirrored answers"
     print(f"Jaccard at 40^3 against the paper's Y, {answer} p > {completer.grid_level:g}")
     print(f"{'set':15s} {'views':>6s} {'Jaccard':>8s} {'input only':>10s}")
     for s, v in r.items():
@@ -590,10 +592,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--samples",
         type=int,
-        default=1,
+        default=8,
         choices=range(1, 9),
         metavar="N",
-        help="score the mean of the answers for N mirrored views (8: what the detailed mesh meshes; default 1)",
+        help="score the mean of the answers for N mirrored views (default 8: the app's output grid; "
+        "1: one answer, as the paper's network gave)",
     )
     s.set_defaults(func=cmd_evaluate_grids)
 

@@ -37,13 +37,16 @@ class Completion:
         context: (2, 40, 40, 40) bool known-empty space (seen free, under the table), [x, y, z]
             (:func:`~shapeviewer.voxel.context_grids`); the CNN output is 0 there.
         support_plane: the table ``(a, b, c, d)`` in the camera frame, or None.
-        probabilities: (40, 40, 40) float32 CNN output.
+        probabilities: (40, 40, 40) float32 CNN output: the mean of its ``samples``, the network's
+            answers for the 8 mirrored views (test-time augmentation: averaging removes part of each
+            answer's error; the model card has the figures).
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
+        samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`),
+            the answers the output averages; their per-voxel disagreement (:attr:`spread`) is the
+            completion's uncertainty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
         envelope_mesh: the grasp envelope of the sample completions
             (:func:`~shapeviewer.grasp.robust.envelope_mesh`; camera frame, metres) once computed.
-        samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`)
-            once computed; their per-voxel disagreement (:attr:`spread`) is the completion's uncertainty.
         partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
             once computed.
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
@@ -60,6 +63,7 @@ class Completion:
     frame: GridFrame
     probabilities: np.ndarray
     fast_mesh: trimesh.Trimesh | None
+    samples: np.ndarray
     context: np.ndarray | None = None
     support_plane: np.ndarray | None = None
     detailed_mesh: trimesh.Trimesh | None = None
@@ -67,7 +71,6 @@ class Completion:
     partial_mesh: trimesh.Trimesh | None = None
     mirror_mesh: trimesh.Trimesh | None = None
     hull_mesh: trimesh.Trimesh | None = None
-    samples: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     error: str | None = None
     mesh_level: float = MESH_LEVEL
@@ -86,10 +89,10 @@ class Completion:
         return self.probabilities > self.mesh_level
 
     @property
-    def spread(self) -> np.ndarray | None:
+    def spread(self) -> np.ndarray:
         """(40, 40, 40) float32 per-voxel disagreement of the ``samples`` (the uncertainty,
-        :func:`~shapeviewer.model.sample_spread`), None before samples are computed."""
-        return None if self.samples is None else sample_spread(self.samples)
+        :func:`~shapeviewer.model.sample_spread`)."""
+        return sample_spread(self.samples)
 
 
 # A completed voxel whose samples spread more than this (model.sample_spread) is a guess, not seen.
@@ -117,31 +120,13 @@ def confidence_figures(
     return figures, guessed
 
 
-def ensure_samples(c: Completion, completer: Completer) -> np.ndarray:
-    """``c``'s sample completions, one per image-plane symmetry (8 CNN passes, batched), made once
-    and kept in ``c.samples``; (8, 40, 40, 40) float32 probabilities."""
-    if c.samples is None or len(c.samples) < len(SYMMETRIES):
-        c.samples = completer.predict_samples(c.grid_in, len(SYMMETRIES), context=c.context)
-    return c.samples
-
-
-def completion_detailed_mesh(
-    c: Completion, points_cam: np.ndarray, completer: Completer, *, timings: dict | None = None
-) -> trimesh.Trimesh:
+def completion_detailed_mesh(c: Completion, points_cam: np.ndarray, *, timings: dict | None = None) -> trimesh.Trimesh:
     """Algorithm 1's mesh of completion ``c`` (camera frame, metres) from its segment's observed
-    points (camera frame, metres), on the table ``c.support_plane``.
-
-    The occupancy it meshes is the mean of the network's answers for the 8 mirrored views
-    (:func:`ensure_samples`), not the single answer the fast mesh shows: averaging removes part of
-    each answer's error (the model card has the ablation) for about 0.1 s, and the samples are
-    then at hand for the Confidence layer.
-    ``timings`` gets Algorithm 1's step times (seconds) and ``samples``, the CNN passes' (0 when
-    ``c`` already had them)."""
-    t0 = time.perf_counter()
-    p = ensure_samples(c, completer).mean(axis=0)
-    if timings is not None:
-        timings["samples"] = time.perf_counter() - t0
-    return detailed_mesh(p, c.frame, points_cam, timings=timings, support_plane=c.support_plane, level=c.mesh_level)
+    points (camera frame, metres), on the table ``c.support_plane``; ``timings`` gets Algorithm 1's
+    step times (seconds)."""
+    return detailed_mesh(
+        c.probabilities, c.frame, points_cam, timings=timings, support_plane=c.support_plane, level=c.mesh_level
+    )
 
 
 def check_segment(points_cam: np.ndarray) -> np.ndarray:
@@ -165,7 +150,8 @@ def complete_points(
     *,
     support_plane: np.ndarray | None = None,
 ) -> list[Completion]:
-    """Fast-complete several segments (camera-frame points, metres): one batched CNN pass.
+    """Fast-complete several segments (camera-frame points, metres): one batched CNN call, the 8
+    mirrored views of every segment (:meth:`~shapeviewer.model.Completer.predict_samples`).
 
     ``support_plane``: the table ``(a, b, c, d)`` in the camera frame (normal towards the camera),
     or None. With the seen free space of each segment it is the CNN's context, and nothing is
@@ -180,17 +166,19 @@ def complete_points(
     grids, frames = zip(*(partial_to_grid(p, depth_shift=completer.depth_shift) for p in pts)) if pts else ((), ())
     contexts = [context_grids(p, f, support_plane=support_plane) for p, f in zip(pts, frames)]
     t1 = time.perf_counter()
-    probs = (
-        completer.predict(np.stack(grids), context=np.stack(contexts))
+    samples = (
+        completer.predict_samples(np.stack(grids), len(SYMMETRIES), context=np.stack(contexts))
         if grids
-        else np.zeros((0, 40, 40, 40), np.float32)
+        else np.zeros((len(SYMMETRIES), 0, 40, 40, 40), np.float32)
     )
     t2 = time.perf_counter()
     n = max(1, len(grids))
     plane = None if support_plane is None else np.asarray(support_plane, dtype=np.float64)
     out = []
-    for sid, g, fr, ctx, p in zip(ids, grids, frames, contexts, probs):
+    for i, (sid, g, fr, ctx) in enumerate(zip(ids, grids, frames, contexts)):
         t3 = time.perf_counter()
+        own = np.ascontiguousarray(samples[:, i])
+        p = own.mean(axis=0)
         try:
             mesh, err = fast_mesh(p, fr, level=completer.mesh_level), None
         except ValueError as e:
@@ -203,6 +191,7 @@ def complete_points(
                 fr,
                 p,
                 mesh,
+                own,
                 ctx,
                 plane,
                 timings=timings,
@@ -234,8 +223,9 @@ def complete(
         support_plane: ``(a, b, c, d)`` of the table in the camera frame, ``a x + b y + c z + d = 0``
             with the normal pointing to the camera's side; None when no table is known (a floating
             object). The completion then rests on the table and stops there.
-        mode: ``"fast"`` (marching cubes of the CNN output) or ``"detailed"`` (Algorithm 1, on the
-            mean of the network's 8 mirrored answers: :func:`completion_detailed_mesh`).
+        mode: ``"fast"`` (marching cubes of the CNN output, the mean of the network's answers for
+            the 8 mirrored views) or ``"detailed"`` (Algorithm 1 on that output:
+            :func:`completion_detailed_mesh`).
         completer: the network (default: the shipped model, loaded once and kept).
 
     Returns:
@@ -262,7 +252,7 @@ def complete(
 
             raise EmptyCompletionError(c.error or "the completion is empty")
         return c.fast_mesh
-    return completion_detailed_mesh(c, pts, completer)
+    return completion_detailed_mesh(c, pts)
 
 
 @lru_cache(maxsize=1)

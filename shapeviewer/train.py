@@ -253,9 +253,10 @@ def evaluate_grids(
     "views"}, :func:`catalogue.shape_kind`). The paper's metric is ``label="solid"`` at the
     network's :attr:`~shapeviewer.model.Completer.grid_level`; training scores its own label at 0.5.
 
-    ``samples``: 1 scores the network's answer (:meth:`~shapeviewer.model.Completer.predict`, the
-    fast mesh's occupancy); n > 1 the mean of its answers for the first n mirrored views
-    (:meth:`~shapeviewer.model.Completer.predict_samples`; 8 is the occupancy the detailed mesh meshes).
+    ``samples``: 1 scores the network's answer for the view as seen
+    (:meth:`~shapeviewer.model.Completer.predict`, what training watches); n > 1 the mean of its
+    answers for the first n mirrored views (:meth:`~shapeviewer.model.Completer.predict_samples`; 8
+    is the app's output grid, :attr:`~shapeviewer.pipeline.Completion.probabilities`).
 
     Uses a seeded sample of at most ``max_views`` views per set.
     """

@@ -111,7 +111,7 @@ def envelope_file(stem: str) -> str:
 def samples_file(stem: str) -> str:
     """Path (relative to the results folder) of a view's sample completions: an ``.npz`` of
     ``samples`` ((8, 40, 40, 40) float32 occupancy probabilities, :meth:`Completer.predict_samples`;
-    sample 0 is the CNN output that Ours-fast meshes) and their grid frame, ``center`` (camera frame,
+    their mean is the CNN output that Ours-fast and Ours-detailed mesh) and their grid frame, ``center`` (camera frame,
     metres) and ``voxel_size`` (metres)."""
     return f"meshes/{stem}__samples.npz"
 

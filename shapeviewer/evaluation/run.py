@@ -102,8 +102,8 @@ def evaluate_view(
     to ``out_dir/meshes`` (camera optical frame, metres)."""
     from ..baselines import hull_mesh, mirror_mesh, partial_mesh
     from ..metrics import completion_metrics
-    from ..reconstruct import detailed_mesh, fast_mesh
-    from ..voxel import context_grids, partial_to_grid
+    from ..pipeline import complete_points, completion_detailed_mesh
+    from ..reconstruct import EmptyCompletionError
 
     view_set = view_set or catalogue.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
@@ -129,47 +129,31 @@ def evaluate_view(
     cnn: dict = {}
 
     def cnn_output():
+        # As the app completes a segment (pipeline.complete_points); the sample completions go to
+        # disk for the grasp stage's robust ranking, which re-closes grasps on them.
         if not cnn:
             t0 = time.perf_counter()
-            x, frame = partial_to_grid(points, depth_shift=completer.depth_shift)
-            context = context_grids(points, frame, support_plane=plane)
-            probs = completer.predict(x, context=context)
-            t1 = time.perf_counter()
-            # The sample completions: Ours-detailed meshes their mean (the time counts for it), and
-            # the grasp stage's robust ranking re-closes grasps on them.
-            samples = completer.predict_samples(x, context=context)
-            t2 = time.perf_counter()
+            (c,) = complete_points([points], completer, support_plane=plane)
+            cnn.update(completion=c, seconds=time.perf_counter() - t0 - c.timings["fast_mesh"])
             np.savez_compressed(
                 Path(out_dir) / samples_file(stem),
-                samples=samples,
-                center=frame.center,
-                voxel_size=frame.voxel_size,
-                mesh_level=completer.mesh_level,
-            )
-            cnn.update(
-                probs=probs,
-                samples=samples,
-                frame=frame,
-                seconds=t1 - t0,
-                seconds_samples=t2 - t1,
+                samples=c.samples,
+                center=c.frame.center,
+                voxel_size=c.frame.voxel_size,
+                mesh_level=c.mesh_level,
             )
         return cnn
 
     def ours_fast():
-        c = cnn_output()
-        t0 = time.perf_counter()
-        return fast_mesh(c["probs"], c["frame"], level=completer.mesh_level), c["seconds"] + time.perf_counter() - t0
+        c = cnn_output()["completion"]
+        if c.fast_mesh is None:
+            raise EmptyCompletionError(c.error or "the completion is empty")
+        return c.fast_mesh, cnn["seconds"] + c.timings["fast_mesh"]
 
     def ours_detailed():
-        # As completion_detailed_mesh: Algorithm 1 on the mean of the 8 mirrored answers.
-        c = cnn_output()
+        c = cnn_output()["completion"]
         t0 = time.perf_counter()
-        return (
-            detailed_mesh(
-                c["samples"].mean(axis=0), c["frame"], points, support_plane=plane, level=completer.mesh_level
-            ),
-            c["seconds"] + c["seconds_samples"] + time.perf_counter() - t0,
-        )
+        return completion_detailed_mesh(c, points), cnn["seconds"] + time.perf_counter() - t0
 
     def timed(fn):
         def run():

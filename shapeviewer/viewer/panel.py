@@ -24,7 +24,6 @@ MAX_UPLOAD_MB = 200
 # Algorithm 1's steps, as keys of the ``timings`` dict that ``completion_detailed_mesh`` fills, with
 # panel labels.
 ALGORITHM_1_STEPS = (
-    ("samples", "CNN, 8 mirrored views"),
     ("density", "density ratio"),
     ("upsample", "up-sample CNN output"),
     ("merge", "merge"),
@@ -191,7 +190,8 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
             step=1,
             initial_value=0,
             hint=f"Step through the CNN's {N_SAMPLES} sample completions of the selected segment (0: none; "
-            "1: the completion itself, the others from mirrored views); where they differ, the network guesses",
+            "1: the view as seen, the others mirrored; the completion is their mean); "
+            "where they differ, the network guesses",
         )
     with gui.add_folder("Load a scene"):
         seed_h = gui.add_number("Seed", seed, min=0, step=1, hint="Seed of the generated tabletop scene")

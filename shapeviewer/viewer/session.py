@@ -44,7 +44,6 @@ from ..pipeline import (
     check_segment,
     complete_points,
     confidence_figures,
-    ensure_samples,
 )
 from ..processes import ProcessPool
 from ..reconstruct import fast_mesh
@@ -483,7 +482,7 @@ class Session:
         steps: dict[str, float] = {}
         try:
             t0 = time.perf_counter()
-            mesh = self.res.pool.run(make_mesh, kind, c, scene, steps, self.res.completer)
+            mesh = self.res.pool.run(make_mesh, kind, c, scene, steps)
             seconds = time.perf_counter() - t0
             t0 = time.perf_counter()
             self.drawing.draw_mesh(scene, kind, sid, mesh)
@@ -519,11 +518,10 @@ class Session:
             self.show_confidence(c)
 
     def show_confidence(self, c: Completion) -> None:
-        """The Confidence layer of ``c`` and its figures in the stage panel; the 8 sample
-        completions it needs (about 8 CNN passes) are made on first use."""
-        self._ensure_samples(c)
+        """The Confidence layer of ``c`` (the disagreement of its 8 sample completions) and its
+        figures in the stage panel."""
         spread = c.spread
-        assert spread is not None and self.scene is not None  # ``c`` is a completion of it
+        assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
             c.segment_id, *confidence_figures(c.grid_in, c.solid, spread)
@@ -545,8 +543,6 @@ class Session:
                 return None
             mesh = None
             if k:
-                self._ensure_samples(c)
-                assert c.samples is not None  # made just above
                 try:
                     mesh = self.res.pool.run(fast_mesh, c.samples[k - 1], c.frame, level=c.mesh_level)
                 except ValueError as e:  # this sample has no surface: nothing to show
@@ -557,11 +553,6 @@ class Session:
             set_value(self.panel.layers["confidence"], True)  # the sample is drawn in that layer
             self.panel.status.content = f"Sample completion **{k}** of {P.N_SAMPLES} of segment {c.segment_id}."
         return mesh
-
-    def _ensure_samples(self, c: Completion) -> None:
-        """Make ``c``'s sample completions (about 8 CNN passes) unless it has them."""
-        if c.samples is None:
-            self.res.pool.run(ensure_samples, c, self.res.completer)
 
     # ------------------------------------------------------------------------------------------
     # Loading
@@ -657,8 +648,6 @@ class Session:
         c, scene = self.completions.get(segment_id), self.scene
         if c is None or scene is None:
             return None
-        self._ensure_samples(c)
-        assert c.samples is not None  # made just above
         return sample_meshes(c.samples, c.frame, scene.T_world_cam, level=c.mesh_level)
 
     def _make_mesh_for_grasps(

@@ -16,8 +16,7 @@ import trimesh
 from ..baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..camera import transform_points
 from ..capture import MAX_CAPTURE_POINTS, Capture, decimate
-from ..model import Completer
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh, ensure_samples
+from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
 from ..segment import Segment, Segmentation, segment_scene, world_frame
 
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
@@ -130,19 +129,16 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
     return LoadedScene(capture, seg, T, note, seg_seconds, {s.id: s for s in seg.segments}, points_world)
 
 
-def make_mesh(
-    kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float], completer: Completer
-) -> trimesh.Trimesh:
+def make_mesh(kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float]) -> trimesh.Trimesh:
     """Camera-frame mesh ``kind`` (``detailed``, ``envelope``, ``partial``, ``hull`` or ``mirror``)
-    of completion ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds); the detailed
-    mesh and the grasp envelope ask ``completer`` for ``c``'s sample completions if it has none yet."""
+    of completion ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds)."""
     points = scene.segments[c.segment_id].points_cam
     if kind == "detailed":
-        return completion_detailed_mesh(c, points, completer, timings=steps)
+        return completion_detailed_mesh(c, points, timings=steps)
     if kind == "envelope":
         from ..grasp.robust import envelope_mesh
 
-        return envelope_mesh(ensure_samples(c, completer), c.frame, np.eye(4))
+        return envelope_mesh(c.samples, c.frame, np.eye(4))
     if kind == "partial":
         return partial_mesh(points)
     if kind == "hull":

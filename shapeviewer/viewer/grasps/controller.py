@@ -296,7 +296,7 @@ class GraspController:
         self, job: GraspJob, scene: LoadedScene, s: SegmentGrasps, client: viser.ClientHandle | None
     ) -> list[Robustness] | None:
         sid = s.segment_id
-        self.host.set_status(f"_Grasps: making the sample completions of segment {sid}..._")
+        self.host.set_status(f"_Grasps: meshing the sample completions of segment {sid}..._")
         samples = self.host.samples(sid)
         if samples is None:
             raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
