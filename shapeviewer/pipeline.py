@@ -88,6 +88,14 @@ class Completion:
         :attr:`mesh_level`; what its uncertainty (:func:`confidence_figures`) is measured on."""
         return self.probabilities > self.mesh_level
 
+    def require_fast_mesh(self) -> trimesh.Trimesh:
+        """The fast mesh, or :class:`~shapeviewer.reconstruct.EmptyCompletionError` saying why there is none."""
+        if self.fast_mesh is None:
+            from .reconstruct import EmptyCompletionError
+
+            raise EmptyCompletionError(self.error or "the completion is empty")
+        return self.fast_mesh
+
     @property
     def spread(self) -> np.ndarray:
         """(40, 40, 40) float32 per-voxel disagreement of the ``samples`` (the uncertainty,
@@ -247,11 +255,7 @@ def complete(
         pts = kept
     c = complete_points([pts], completer, support_plane=support_plane)[0]
     if mode == "fast":
-        if c.fast_mesh is None:
-            from .reconstruct import EmptyCompletionError
-
-            raise EmptyCompletionError(c.error or "the completion is empty")
-        return c.fast_mesh
+        return c.require_fast_mesh()
     return completion_detailed_mesh(c, pts)
 
 

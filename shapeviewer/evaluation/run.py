@@ -103,7 +103,6 @@ def evaluate_view(
     from ..baselines import hull_mesh, mirror_mesh, partial_mesh
     from ..metrics import completion_metrics
     from ..pipeline import complete_points, completion_detailed_mesh
-    from ..reconstruct import EmptyCompletionError
 
     view_set = view_set or catalogue.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
@@ -146,9 +145,7 @@ def evaluate_view(
 
     def ours_fast():
         c = cnn_output()["completion"]
-        if c.fast_mesh is None:
-            raise EmptyCompletionError(c.error or "the completion is empty")
-        return c.fast_mesh, cnn["seconds"] + c.timings["fast_mesh"]
+        return c.require_fast_mesh(), cnn["seconds"] + c.timings["fast_mesh"]
 
     def ours_detailed():
         c = cnn_output()["completion"]
