@@ -142,8 +142,10 @@ def shot(walk, name: str) -> Path:
 
 
 def unlabelled(walk, names: list[str]) -> list[str]:
-    """Of the label nodes ``names``, those with no dark (text) pixels just above their anchor in
-    a screenshot of the page (labels are dark text over the light sky; anchored bottom-centre)."""
+    """Of the label nodes ``names``, those with no text just above their anchor in a screenshot of
+    the page (labels are dark text over the light sky, anchored bottom-centre). Text is counted as
+    pixels much darker than the sky around them: software WebGL draws the same label anywhere from
+    near-black to mid-grey (luminance 12-98 at its darkest in two runs), the sky is 255."""
     from PIL import Image
 
     image = np.asarray(Image.open(io.BytesIO(walk.page.screenshot(timeout=120_000))).convert("L"))
@@ -153,8 +155,8 @@ def unlabelled(walk, names: list[str]) -> list[str]:
         if xy is None:
             continue  # under the panel
         x, y = int(xy[0]), int(xy[1])
-        box = image[max(0, y - 60) : y + 5, max(0, x - 60) : x + 60]
-        if (box < 100).sum() < 20:
+        box = image[max(0, y - 60) : y + 5, max(0, x - 60) : x + 60].astype(int)
+        if (box < np.median(box) - 80).sum() < 40:
             missing.append(name)
     return missing
 
