@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 from shapeviewer.camera import transform_points
-from shapeviewer.grasp.robust import LIFT_TOP, rank_robust, robustness
+from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, rank_robust, robustness
 from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import grasps as G
 from shapeviewer.viewer.session import Session
@@ -267,13 +267,16 @@ def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
     assert options[0].startswith(f"#{best + 1} ") and panel.grasp.value == options[0] and app.grasps.selected == best
     assert all(" · holds " in o for o in options)
     # Those that lift the mesh first (the planner's lift check), each group most robust first.
-    # Within each group, those lifted on the samples first (LIFT_TOP of them, most lifts first),
-    # then by how many samples they hold on.
+    # Within each group, those lifted on the samples first (LIFT_TOP of them; those lifted in a
+    # second round, 16 tests, before those lifted once, 8; then by the share lifted), then by how
+    # many samples they hold on.
     lifted = [" · lifts" in o for o in options]
     held = [int(o.split("holds ")[1].split("/")[0]) for o in options]
-    on_samples = [int(o.split("lifted ")[1].split("/")[0]) if " · lifted " in o else -1 for o in options]
+    tests = [o.split("lifted ")[1].split("/") if " · lifted " in o else ("-1", "0") for o in options]
+    on_samples = [(int(m), int(n) / max(1, int(m))) for n, m in tests]
     assert lifted == sorted(lifted, reverse=True) and held[0] == round(8 * scores[best].fraction)
-    assert sum(n >= 0 for n in on_samples) == min(LIFT_TOP, len(scores))
+    assert sum(m > 0 for m, _ in on_samples) == min(LIFT_TOP, len(scores))
+    assert sum(m == 16 for m, _ in on_samples) == min(RECHECK_TOP, len(scores))
     for group in (True, False):
         in_group = [(n, h) for n, h, up in zip(on_samples, held, lifted) if up == group]
         assert in_group == sorted(in_group, reverse=True)

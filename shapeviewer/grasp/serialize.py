@@ -13,16 +13,17 @@ lengths in metres, angles in radians, except the execution errors, as named in `
                  "lift": null or {"success", "rise", "slip"},
                  "execution": null or {the executed state, "joint_error", "pose_error",
                                        "start_clear", "approach_contact", "lift": null or {...}},
-                 "robustness": null or {"fraction", "epsilon_low", "epsilons", "lifted"}}]}
+                 "robustness": null or {"fraction", "epsilon_low", "epsilons", "lifted", "lift_rounds"}}]}
 
 ``lift`` is the planner's lift test of the grasp on the mesh it was planned on (rise and slip in
 metres); ``execution.lift`` is the same test on the true object.
 
 ``robustness`` (:class:`~shapeviewer.grasp.robust.Robustness`) is how the grasp fares re-closed on
 sample completions: the share of samples on which it holds, a lower quantile of its epsilon over
-them (the writer may name the quantile in ``meta``), its epsilon on each sample, and the share of
-samples it lifted (null when it was not lifted on them). Files written before ``lift``,
-``robustness`` or ``lifted`` existed have no such key; they read as null.
+them (the writer may name the quantile in ``meta``), its epsilon on each sample, the share of its
+lift tests that lifted the sample (null when it was not lifted on them) and how many rounds of a
+lift on every sample it had. Files written before ``lift``, ``robustness`` or ``lifted`` existed
+have no such key; they read as null (``lift_rounds``: one when lifted, else none).
 
 The palm frame is the hand URDF's base link frame (origin at the centre of the palm face, +z the
 approach). Reading uses ``T_world_palm``; position, quaternion, approach and force_closure are
@@ -137,6 +138,7 @@ def grasp_to_dict(grasp: Grasp, execution: ExecutionResult | None = None, robust
             "epsilon_low": float(robustness.epsilon_low),
             "epsilons": _floats(robustness.epsilons),
             "lifted": None if robustness.lifted is None else float(robustness.lifted),
+            "lift_rounds": int(robustness.lift_rounds),
         }
     )
     return d
@@ -193,23 +195,21 @@ def grasps_to_json(
     return "{\n" + "\n".join(lines) + '\n "grasps": [\n  ' + items + "\n ]\n}\n"
 
 
+def _robustness_from_dict(d: dict) -> Robustness:
+    lifted = None if d.get("lifted") is None else float(d["lifted"])
+    rounds = d.get("lift_rounds", int(lifted is not None))
+    return Robustness(
+        float(d["fraction"]), float(d["epsilon_low"]), tuple(map(float, d["epsilons"])), lifted, int(rounds)
+    )
+
+
 def grasps_from_json(text: str | bytes) -> GraspSet:
     """Read a document written by :func:`grasps_to_json`."""
     doc = json.loads(text)
     if doc.get("format") != FORMAT or doc.get("version") != VERSION:
         raise ValueError(f"not a {FORMAT} v{VERSION} document: {doc.get('format')!r} v{doc.get('version')!r}")
     pairs = [grasp_from_dict(d) for d in doc["grasps"]]
-    scores = [
-        None
-        if d.get("robustness") is None
-        else Robustness(
-            float(d["robustness"]["fraction"]),
-            float(d["robustness"]["epsilon_low"]),
-            tuple(map(float, d["robustness"]["epsilons"])),
-            None if d["robustness"].get("lifted") is None else float(d["robustness"]["lifted"]),
-        )
-        for d in doc["grasps"]
-    ]
+    scores = [None if d.get("robustness") is None else _robustness_from_dict(d["robustness"]) for d in doc["grasps"]]
     return GraspSet([g for g, _ in pairs], [e for _, e in pairs], doc.get("meta", {}), scores)
 
 

@@ -321,7 +321,12 @@ class GraspController:
             "Ranked by robustness",
             f"Segment {sid}: grasp #{order[0] + 1} is the most robust; it holds on "
             f"{round(best.fraction * len(samples))} of {len(samples)} sample completions"
-            + ("." if best.lifted is None else f" and lifts {round(best.lifted * len(samples))} of them."),
+            + (
+                "."
+                if best.lifted is None
+                else f"; it lifted them in {round(best.lifted * len(samples) * best.lift_rounds)} of "
+                f"{len(samples) * best.lift_rounds} tests."
+            ),
             "green",
         )
         return scores

@@ -13,7 +13,7 @@ import numpy as np
 
 from ...grasp.execute import ExecutionResult
 from ...grasp.hands import Hand, get_hand
-from ...grasp.robust import LIFT_TOP, ROBUST_QUANTILE, Robustness, rank_robust
+from ...grasp.robust import LIFT_TOP, RECHECK_TOP, ROBUST_QUANTILE, Robustness, rank_robust
 from ...grasp.state import LiftResult
 from .state import SegmentGrasps
 
@@ -43,9 +43,9 @@ def _holds(r: Robustness) -> str:
 
 
 def _lifted(r: Robustness) -> str:
-    """`` · lifted <n>/<samples>``: how many sample completions a grasp lifted ("" when it was not
-    lifted on them)."""
-    n = len(r.epsilons)
+    """`` · lifted <n>/<tests>``: how many of its lift tests on the sample completions a grasp
+    passed (one per sample and round; "" when it was not lifted on them)."""
+    n = len(r.epsilons) * r.lift_rounds
     return "" if r.lifted is None else f" · lifted {round(r.lifted * n)}/{n}"
 
 
@@ -102,7 +102,8 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
         lines.append(
             f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions, the palm off "
             f"by up to a few mm and degrees on each: most robust first (the share of samples a grasp lifts, "
-            f"for the {LIFT_TOP} best, then the share it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
+            f"for the {LIFT_TOP} best, the {RECHECK_TOP} best of them lifted in a second round first; then the "
+            f"share it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
             "after those that lift the mesh."
         )
     if real_capture:
