@@ -13,12 +13,14 @@ re-ranks those same grasps offline, so rankings compare on identical grasps and 
   of any ranking of these grasps);
 * ``robust now`` (with ``--rerank``): the grasps ranked again by today's
   :func:`~shapeviewer.grasp.robust.robustness` on the view's saved sample completions, so that a
-  change to the robust score is measured on the grasps and outcomes of an earlier evaluation.
+  change to the robust score is measured on the grasps and outcomes of an earlier evaluation;
+  with ``--settings``, ``robust <lift_top>,<recheck_top>`` for each pair instead (how many grasps
+  are lifted on every sample, and how many of those again in a second round).
 
     shapeviewer evaluate --out results/table50 --views tabletop --views-per-set 50 --grasps \\
         --n-grasps 10 --grasp-budget 10 --grasp-methods Ours-detailed --robust
     python benchmarks/ranking.py results/table50 [more results folders] [--quantiles 0 0.25 0.5] \\
-        [--rerank [--processes 2]]
+        [--rerank [--processes 2] [--settings 3,2 5,0]]
 
 Prints the best grasp's lift success per view set for each ranking (a view without grasps counts as
 a failure, and a view whose grasping stage failed is left out, as in Table V).
@@ -35,15 +37,15 @@ import numpy as np
 from shares import add, new_shares, print_shares
 
 
-def rerank(root: Path, record: dict, method: str, grasps: list) -> int:
-    """The index of a view's best grasp by today's :func:`~shapeviewer.grasp.robust.robustness`,
-    on its saved ``grasps`` and sample completions (the evaluation's own robust step)."""
+def rerank(root: Path, record: dict, method: str, grasps: list, options: dict) -> int:
+    """The index of a view's best grasp by today's :func:`~shapeviewer.grasp.robust.robustness`
+    (with ``options``), on its saved ``grasps`` and sample completions (the evaluation's own robust step)."""
     from shapeviewer.evaluation.records import samples_file, view_stem
     from shapeviewer.evaluation.run import grasp_meshes, robust_ranking
 
     completion, _, T_world_cam, table = grasp_meshes(root, record, method)
     samples = root / samples_file(view_stem(record["object"], int(record["view"])))
-    ranked = robust_ranking(samples, grasps, completion, T_world_cam, table)
+    ranked = robust_ranking(samples, grasps, completion, T_world_cam, table, **options)
     return next(i for i, r in enumerate(ranked) if r["rank"] == 0)
 
 
@@ -54,6 +56,7 @@ def main() -> None:
     ap.add_argument("--quantiles", nargs="+", type=float, default=[0.0, 0.125, 0.25, 0.5])
     ap.add_argument("--rerank", action="store_true", help="also rank by today's robustness (recomputed)")
     ap.add_argument("--processes", type=int, default=2, help="views re-ranked at once, with --rerank")
+    ap.add_argument("--settings", nargs="+", default=None, help="with --rerank: lift_top,recheck_top pairs")
     args = ap.parse_args()
 
     from shapeviewer.grasp.robust import Robustness, rank_robust
@@ -71,20 +74,26 @@ def main() -> None:
             if entry is None or entry["error"] or not entry["file"]:
                 continue  # as Table V does: a view whose grasping failed is reported apart
             views.append((root, record, grasps_from_json((root / entry["file"]).read_text())))
-    reranked = [None] * len(views)
+    settings = (
+        {"robust now": {}}
+        if args.settings is None
+        else {f"robust {s}": dict(zip(("lift_top", "recheck_top"), map(int, s.split(",")))) for s in args.settings}
+    )
+    reranked: dict[str, list] = {}
     if args.rerank:
         with mp.get_context("fork").Pool(args.processes) as pool:
-            reranked = pool.starmap(rerank, [(root, record, args.method, gs.grasps) for root, record, gs in views])
-    for (_, record, gs), now in zip(views, reranked):
+            for label, options in settings.items():
+                jobs = [(root, record, args.method, gs.grasps, options) for root, record, gs in views]
+                reranked[label] = pool.starmap(rerank, jobs)
+    for k, (_, record, gs) in enumerate(views):
         lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]
         robust = gs.meta.get("robustness")
         picks = {"planner": 0, "oracle": int(np.argmax(lifted)) if lifted else 0}
         if robust:
             for q in args.quantiles:
-                scores = [Robustness.of(r["epsilons"], q, r.get("lifted")) for r in robust]
+                scores = [Robustness.of(r["epsilons"], q, r.get("lifted"), r.get("lift_rounds")) for r in robust]
                 picks[f"robust q={q:g}"] = rank_robust(scores, [g.lift for g in gs.grasps])[0]
-        if now is not None:
-            picks["robust now"] = now
+        picks.update({label: picks_now[k] for label, picks_now in reranked.items()})
         for name, i in picks.items():
             add(success, name, record["view_set"], float(lifted[i]) if lifted else 0.0)
     print_shares(success, "ranking")

@@ -8,7 +8,11 @@ re-closes every grasp on every sample's mesh (the palm off by that sample's pose
 the ``LIFT_TOP`` most robust on every sample. Planning is set-up, not timed; its V-HACD of the
 fast mesh, which robustness cuts the samples along, is then in the cache as it is after any plan.
 
-    python benchmarks/robust.py [--views 5] [--set tabletop_holdout_model] [--grasps 20] [--processes 2]
+    python benchmarks/robust.py [--views 5] [--set tabletop_holdout_model] [--grasps 20] [--processes 2] \
+        [--settings 4,2 5,0]
+
+``--settings``: ``lift_top,recheck_top`` pairs (default: the module's ``LIFT_TOP,RECHECK_TOP``), each
+timed on every view right after the others, so that they compare under the same load.
 
 Wall-clock times depend on what else runs on the machine; "cpu s" is the CPU time of this process
 and its workers together, a load-independent figure (on idle cores the wall time is about it
@@ -40,23 +44,26 @@ def main() -> None:
     ap.add_argument("--grasps", type=int, default=20)
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--settings", nargs="+", default=None, help="lift_top,recheck_top pairs to time")
     args = ap.parse_args()
 
     from shapeviewer.evaluation.run import grasp_world
     from shapeviewer.evaluation.viewsets import TABLETOP_SETS, render_view, sample_views
     from shapeviewer.grasp.plan import plan
-    from shapeviewer.grasp.robust import rank_robust, robustness, sample_meshes
+    from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, rank_robust, robustness, sample_meshes
     from shapeviewer.model import load_completer
     from shapeviewer.voxel import context_grids, partial_to_grid
 
     completer = load_completer()
     kind = "tabletop" if args.set in TABLETOP_SETS else "paper"
     views = [v for v in sample_views(args.views, args.seed, kind) if v[2] == args.set]
+    settings = [tuple(map(int, s.split(","))) for s in (args.settings or [f"{LIFT_TOP},{RECHECK_TOP}"])]
     print(
-        f"{'view':36s} {'faces':>6s} {'grasps':>6s} {'wall s':>7s} {'cpu s':>6s} {'held':>5s} {'top held':>8s}"
-        f" {'robust top':>10s}"
+        f"{'view':36s} {'setting':>7s} {'faces':>6s} {'grasps':>6s} {'wall s':>7s} {'cpu s':>6s} {'held':>5s}"
+        f" {'top held':>8s} {'robust top':>10s}"
     )
-    walls, cpus = [], []
+    walls: dict[tuple, list[float]] = {s: [] for s in settings}
+    cpus: dict[tuple, list[float]] = {s: [] for s in settings}
     for name, view, view_set in views:
         try:
             observed = render_view(name, view, view_set, args.seed)
@@ -73,21 +80,37 @@ def main() -> None:
         if not grasps:
             print(f"(skipping {name} {view}: no grasp planned)")
             continue
-        cpu, t = cpu_seconds(), time.perf_counter()
-        scores = robustness(grasps, meshes, meshes[0], table=table, processes=args.processes)
-        walls.append(time.perf_counter() - t)
-        cpus.append(cpu_seconds() - cpu)
-        order = rank_robust(scores, [g.lift for g in grasps])
+        for lift_top, recheck_top in settings:
+            cpu, t = cpu_seconds(), time.perf_counter()
+            scores = robustness(
+                grasps,
+                meshes,
+                meshes[0],
+                table=table,
+                processes=args.processes,
+                lift_top=lift_top,
+                recheck_top=recheck_top,
+            )
+            walls[lift_top, recheck_top].append(time.perf_counter() - t)
+            cpus[lift_top, recheck_top].append(cpu_seconds() - cpu)
+            order = rank_robust(scores, [g.lift for g in grasps])
+            best = scores[order[0]]
+            print(
+                f"{name + ' ' + str(view):36s} {lift_top:>4d},{recheck_top:<2d} {len(meshes[0].faces):6d}"
+                f" {len(grasps):6d} {walls[lift_top, recheck_top][-1]:7.2f} {cpus[lift_top, recheck_top][-1]:6.2f}"
+                f" {np.mean([s.fraction for s in scores]):5.2f} {scores[0].fraction:8.2f}"
+                f" {order[0]:>4d} ({best.fraction:.2f}, lifted {best.lifted if best.lifted is not None else 0:.2f})"
+            )
+    print()
+    for s in settings:
         print(
-            f"{name + ' ' + str(view):36s} {len(meshes[0].faces):6d} {len(grasps):6d} {walls[-1]:7.2f}"
-            f" {cpus[-1]:6.2f} {np.mean([s.fraction for s in scores]):5.2f} {scores[0].fraction:8.2f}"
-            f" {order[0]:>4d} ({scores[order[0]].fraction:.2f}, lifted {scores[order[0]].lifted:.2f})"
+            f"lift_top {s[0]}, recheck_top {s[1]}: median over {len(walls[s])} views"
+            f" {statistics.median(walls[s]):.2f} s wall with {args.processes} processes (target 3),"
+            f" {statistics.median(cpus[s]):.2f} s CPU"
         )
     print(
-        f"\nmedian over {len(walls)} views: {statistics.median(walls):.2f} s wall with {args.processes} processes "
-        f"(target 3), {statistics.median(cpus):.2f} s CPU; 'held': mean share of samples a grasp holds on, "
-        "'top held': the planner's top grasp's, 'robust top': the grasp ranked first by robustness "
-        "(the shares it holds on and lifts)"
+        "'held': mean share of samples a grasp holds on, 'top held': the planner's top grasp's, 'robust top': "
+        "the grasp ranked first by robustness (the shares it holds on and lifts)"
     )
 
 

@@ -48,7 +48,7 @@ itself, exactly as in the planner. (V-HACD's parts stand about a millimetre prou
 hulls of a sample's own vertices do not.) The lift test moves the sample as one body of those parts.
 
 Cost: about 10 ms per grasp and sample to re-close the hand and as much for its epsilon, and 50 ms
-per lift, so 20 grasps on 8 samples, the 5 best lifted and 2 of them again, take about 6 s of CPU
+per lift, so 20 grasps on 8 samples, the 3 best lifted and 2 of them again, take about 5 s of CPU
 time (``benchmarks/robust.py``), shared by ``processes``. Deterministic: the pose errors come from
 ``seed`` (and ``seed + 1`` for the second round); ``processes`` only shares out the samples. In one
 process the work can report its progress and be cancelled between samples (the viewer's "Rank by
@@ -82,7 +82,7 @@ from shapeviewer.voxel import GridFrame
 ROBUST_QUANTILE = 0.25  # the robust score's pessimistic epsilon: the lower quartile over samples
 POSE_NOISE = 0.005  # m: std of each axis of the palm's position error on a sample
 ROTATION_NOISE = 3.0  # degrees: std of each axis of the palm's rotation error (a rotation vector)
-LIFT_TOP = 5  # grasps lifted on every sample: the most robust by closure
+LIFT_TOP = 3  # grasps lifted on every sample: the most robust by closure
 RECHECK_TOP = 2  # of those, the most robust are lifted in a second round with new palm errors
 LIFT_COST = 2.5  # a lift test takes about as long as this many closures
 # The grasp envelope's level: the mean sample answer above this is what the network thinks may be
