@@ -101,9 +101,9 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
     if s.robustness:
         lines.append(
             f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions, the palm off "
-            f"by up to a few mm and degrees on each: most robust first (the share of samples a grasp lifts, "
-            f"for the {LIFT_TOP} best, the {RECHECK_TOP} best of them lifted in a second round first; then the "
-            f"share it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
+            f"by up to a few mm and degrees on each: most robust first (the {LIFT_TOP} best are lifted on every "
+            f"sample, the {RECHECK_TOP} best of them twice and first, by the share of tests that lift the sample; "
+            f"then the share of samples it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
             "after those that lift the mesh."
         )
     if real_capture:
