@@ -67,6 +67,7 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
             shown = dropdown_value(page, "Grasp")
             # The most robust grasp is among those lifted on the samples, and says so.
             tests = 8 * job.result[best].lift_rounds  # one lift per sample and round
+            assert job.result[best].lift_tests == tests
             lifted = f"lifted {round(tests * job.result[best].lifted)}/{tests}"
             assert shown.startswith(f"#{best + 1} ") and shown.endswith(f"{holds} · {lifted}")
     finally:

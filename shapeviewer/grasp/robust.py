@@ -11,11 +11,11 @@ by that sample's pose error (:func:`palm_perturbations`: none on sample 0, ``POS
 grasps, so far, from their closed state on every sample in the dynamic lift test
 (:func:`~shapeviewer.grasp.lift.lift_test`). The ``RECHECK_TOP`` most robust after that are lifted
 on every sample once more, with new palm errors (``seed + 1``), and rank first, by their lift
-share over both rounds: one round of 8 lifts tells a grasp that lifts 7 of 8 from one that lifts 8
-poorly, and most views have several grasps that lift all 8. :func:`rank_robust` orders the grasps
-by how well they survive: after the planner's lift check, those lifted in two rounds, then the
-share of samples the grasp lifts, then the share on which it still has force closure, then a lower
-quantile of its epsilon over the samples.
+share over both rounds: most views have several grasps that lift all 8 samples once, and one
+round of 8 lifts cannot reliably tell a grasp that lifts 7 in 8 from one that lifts them all.
+:func:`rank_robust` orders the grasps by how well they survive: after the planner's lift check,
+those lifted in two rounds, then the share of samples the grasp lifts, then the share on which it
+still has force closure, then a lower quantile of its epsilon over the samples.
 
 :func:`envelope_mesh` is the mesh to plan on for this ranking: the samples' mean taken at a lower
 level than a completion's surface, so that grasps wrap what the object may be where the network
@@ -60,7 +60,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -113,6 +113,11 @@ class Robustness:
     epsilons: tuple[float, ...]
     lifted: float | None = None
     lift_rounds: int = 0
+
+    @property
+    def lift_tests(self) -> int:
+        """How many lift tests :attr:`lifted` is the share of: one per sample and round."""
+        return len(self.epsilons) * self.lift_rounds
 
     @classmethod
     def of(
@@ -392,15 +397,19 @@ def robustness(
             _close_on_samples, [(grasps, share, parts, table, folder) for share in shares], stage(0), cancel
         )
         epsilons = np.array([closed[k].epsilons for k in range(n)]).T  # grasps x samples
+        closure = [Robustness.of(e, quantile) for e in epsilons]
         if not lifted:
-            return [Robustness.of(e, quantile) for e in epsilons]
-        top = rank_robust([Robustness.of(e, quantile) for e in epsilons], planned)[:lifted]
+            return closure
+
+        def with_lifts(tests: dict[int, list[bool]]) -> list[Robustness]:
+            return [
+                s if i not in tests else replace(s, lifted=float(np.mean(tests[i])), lift_rounds=len(tests[i]) // n)
+                for i, s in enumerate(closure)
+            ]
+
+        top = rank_robust(closure, planned)[:lifted]
         tests = dict(zip(top, lift_closed(closed, shares, top, 1)))
-        scores = [
-            Robustness.of(e, quantile, None if i not in tests else float(np.mean(tests[i])))
-            for i, e in enumerate(epsilons)
-        ]
-        again = rank_robust(scores, planned)[:rechecked]
+        again = rank_robust(with_lifts(tests), planned)[:rechecked]
         if again:
             shares = round_of(n, seed + 1)
             closed = _shared(
@@ -411,10 +420,7 @@ def robustness(
             )
             for i, more in zip(again, lift_closed(closed, shares, list(range(len(again))), 3)):
                 tests[i] = tests[i] + more
-    return [
-        Robustness.of(e, quantile, None if i not in tests else float(np.mean(tests[i])), len(tests.get(i, ())) // n)
-        for i, e in enumerate(epsilons)
-    ]
+    return with_lifts(tests)
 
 
 def rank_robust(scores: Sequence[Robustness], lifts: Sequence[LiftResult | None] | None = None) -> list[int]:

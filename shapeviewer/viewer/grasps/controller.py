@@ -324,8 +324,7 @@ class GraspController:
             + (
                 "."
                 if best.lifted is None
-                else f"; it lifted them in {round(best.lifted * len(samples) * best.lift_rounds)} of "
-                f"{len(samples) * best.lift_rounds} tests."
+                else f"; it lifted them in {round(best.lifted * best.lift_tests)} of {best.lift_tests} tests."
             ),
             "green",
         )

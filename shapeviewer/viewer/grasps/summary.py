@@ -45,7 +45,7 @@ def _holds(r: Robustness) -> str:
 def _lifted(r: Robustness) -> str:
     """`` · lifted <n>/<tests>``: how many of its lift tests on the sample completions a grasp
     passed (one per sample and round; "" when it was not lifted on them)."""
-    n = len(r.epsilons) * r.lift_rounds
+    n = r.lift_tests
     return "" if r.lifted is None else f" · lifted {round(r.lifted * n)}/{n}"
 
 
