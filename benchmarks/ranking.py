@@ -14,13 +14,14 @@ re-ranks those same grasps offline, so rankings compare on identical grasps and 
 * ``robust now`` (with ``--rerank``): the grasps ranked again by today's
   :func:`~shapeviewer.grasp.robust.robustness` on the view's saved sample completions, so that a
   change to the robust score is measured on the grasps and outcomes of an earlier evaluation;
-  with ``--settings``, ``robust <lift_top>,<recheck_top>`` for each pair instead (how many grasps
-  are lifted on every sample, and how many of those again in a second round).
+  with ``--settings``, ``robust <lift_top>,<recheck_top>[,<hedge>]`` for each instead (how many
+  grasps are lifted on every sample, how many of those again in a second round, and how far below
+  the completion's level every other sample is meshed: ``grasp.robust.HEDGE``, 0 meshes all at it).
 
     shapeviewer evaluate --out results/table50 --views tabletop --views-per-set 50 --grasps \\
         --n-grasps 10 --grasp-budget 10 --grasp-methods Ours-detailed --robust
     python benchmarks/ranking.py results/table50 [more results folders] [--quantiles 0 0.25 0.5] \\
-        [--rerank [--processes 2] [--settings 3,2 5,0]]
+        [--rerank [--processes 2] [--settings 3,2,0 3,2,0.2 5,0]]
 
 Prints the best grasp's lift success per view set for each ranking (a view without grasps counts as
 a failure, and a view whose grasping stage failed is left out, as in Table V).
@@ -43,10 +44,23 @@ def rerank(root: Path, record: dict, method: str, grasps: list, options: dict) -
     from shapeviewer.evaluation.records import samples_file, view_stem
     from shapeviewer.evaluation.run import grasp_meshes, robust_ranking
 
+    if not grasps:
+        # A view without grasps fails whatever the pick; and a StopIteration from next() below
+        # would silently end the pool's chunk of results.
+        return 0
     completion, _, T_world_cam, table = grasp_meshes(root, record, method)
     samples = root / samples_file(view_stem(record["object"], int(record["view"])))
     ranked = robust_ranking(samples, grasps, completion, T_world_cam, table, **options)
     return next(i for i, r in enumerate(ranked) if r["rank"] == 0)
+
+
+def setting_options(setting: str) -> dict:
+    """``"3,2"`` or ``"3,2,0.2"`` as :func:`~shapeviewer.evaluation.run.robust_ranking`'s options."""
+    values = setting.split(",")
+    if len(values) not in (2, 3):
+        raise SystemExit(f"--settings {setting}: expected lift_top,recheck_top[,hedge]")
+    options = {"lift_top": int(values[0]), "recheck_top": int(values[1])}
+    return options | ({"hedge": float(values[2])} if len(values) == 3 else {})
 
 
 def main() -> None:
@@ -56,7 +70,9 @@ def main() -> None:
     ap.add_argument("--quantiles", nargs="+", type=float, default=[0.0, 0.125, 0.25, 0.5])
     ap.add_argument("--rerank", action="store_true", help="also rank by today's robustness (recomputed)")
     ap.add_argument("--processes", type=int, default=2, help="views re-ranked at once, with --rerank")
-    ap.add_argument("--settings", nargs="+", default=None, help="with --rerank: lift_top,recheck_top pairs")
+    ap.add_argument(
+        "--settings", nargs="+", default=None, help="with --rerank: lift_top,recheck_top[,hedge] (default hedge)"
+    )
     args = ap.parse_args()
 
     from shapeviewer.grasp.robust import Robustness, rank_robust
@@ -75,9 +91,7 @@ def main() -> None:
                 continue  # as Table V does: a view whose grasping failed is reported apart
             views.append((root, record, grasps_from_json((root / entry["file"]).read_text())))
     settings = (
-        {"robust now": {}}
-        if args.settings is None
-        else {f"robust {s}": dict(zip(("lift_top", "recheck_top"), map(int, s.split(",")))) for s in args.settings}
+        {"robust now": {}} if args.settings is None else {f"robust {s}": setting_options(s) for s in args.settings}
     )
     reranked: dict[str, list] = {}
     if args.rerank:

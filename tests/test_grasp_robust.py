@@ -19,6 +19,7 @@ from shapeviewer.grasp.robust import (
     palm_perturbations,
     rank_robust,
     robustness,
+    sample_meshes,
 )
 from shapeviewer.grasp.state import LiftResult
 
@@ -165,6 +166,28 @@ def test_the_envelope_keeps_what_the_samples_hedge_on():
     centre = frame.to_metres(np.full((1, 3), 20.0))[0] + T[:3, 3]
     np.testing.assert_allclose(envelope.bounds.mean(0), centre, atol=0.003)
     assert envelope.contains(surface.vertices[:50]).all()
+
+
+def test_every_other_sample_is_meshed_where_the_network_hedges():
+    """Samples sure of a 10-voxel core and 0.4 about a shell out to 18 voxels: samples 0, 2... are
+    meshed at the level (the core), 1, 3... ``hedge`` below it (the shell), all closed and moved by
+    ``T_world_cam``; with ``hedge=0`` all keep the core."""
+    from shapeviewer.voxel import GridFrame
+
+    frame = GridFrame(np.array([0.0, 0.0, 0.5]), 0.005)
+    p = np.zeros((40, 40, 40), np.float32)
+    p[11:29, 11:29, 11:29] = 0.4
+    p[15:25, 15:25, 15:25] = 0.9
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    meshes = sample_meshes(np.stack([p] * 4), frame, T, level=0.5, hedge=0.2)
+    assert all(m.is_watertight for m in meshes)
+    for k, mesh in enumerate(meshes):
+        np.testing.assert_allclose(mesh.extents, (10 if k % 2 == 0 else 18) * 0.005, atol=0.006)
+        centre = frame.to_metres(np.full((1, 3), 20.0))[0] + T[:3, 3]
+        np.testing.assert_allclose(mesh.bounds.mean(0), centre, atol=0.003)
+    flat = sample_meshes(np.stack([p] * 2), frame, T, level=0.5, hedge=0.0)
+    np.testing.assert_allclose([m.extents for m in flat], 10 * 0.005, atol=0.006)
 
 
 def _robust_evaluation(folder, methods: tuple[str, ...]):

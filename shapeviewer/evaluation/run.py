@@ -417,18 +417,20 @@ def write_envelope(out_dir, record: dict) -> str:
     return rel
 
 
-def robust_ranking(samples: Path, grasps, completion, T_world_cam: np.ndarray, table: bool, **options) -> list[dict]:
+def robust_ranking(
+    samples: Path, grasps, completion, T_world_cam: np.ndarray, table: bool, *, hedge: float | None = None, **options
+) -> list[dict]:
     """Each grasp's robustness over a view's sample completions (the file ``samples``, see
     :func:`records.samples_file`, meshed and moved to the grasp world by ``T_world_cam``) and its
     rank by it (0 first), as a grasp file's ``meta["robustness"]`` (:func:`records.grasp_rows`).
     ``grasps`` were planned on ``completion`` (the grasp world, metres), on the table if ``table``;
-    ``options`` go to :func:`~shapeviewer.grasp.robust.robustness` (``lift_top``, ``recheck_top``...)."""
-    from ..grasp.robust import rank_robust, robustness, sample_meshes
+    ``hedge`` goes to :func:`~shapeviewer.grasp.robust.sample_meshes` (None: its default), ``options`` to
+    :func:`~shapeviewer.grasp.robust.robustness` (``lift_top``, ``recheck_top``...)."""
+    from ..grasp.robust import HEDGE, rank_robust, robustness, sample_meshes
 
     grids, frame, level = load_samples(samples)
-    scores = robustness(
-        grasps, sample_meshes(grids, frame, T_world_cam, level=level), completion, table=table, **options
-    )
+    meshes = sample_meshes(grids, frame, T_world_cam, level=level, hedge=HEDGE if hedge is None else hedge)
+    scores = robustness(grasps, meshes, completion, table=table, **options)
     rank = {i: k for k, i in enumerate(rank_robust(scores, [g.lift for g in grasps]))}
     return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]
 

@@ -100,7 +100,8 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
         lines.append(f"Colour: ε from red (0) to green (ε = {best:.3f}, the best); grey: no force closure.")
     if s.robustness:
         lines.append(
-            f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions, the palm off "
+            f"**Ranked by robustness** over {len(s.robustness[0].epsilons)} sample completions (every other one "
+            "meshed further out, where the network is unsure), the palm off "
             f"by up to a few mm and degrees on each: most robust first (the {LIFT_TOP} best are lifted on every "
             f"sample, the {RECHECK_TOP} best of them twice and first, by the share of tests that lift the sample; "
             f"then the share of samples it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
