@@ -9,10 +9,11 @@ the ``LIFT_TOP`` most robust on every sample. Planning is set-up, not timed; its
 fast mesh, which robustness cuts the samples along, is then in the cache as it is after any plan.
 
     python benchmarks/robust.py [--views 5] [--set tabletop_holdout_model] [--grasps 20] [--processes 2] \
-        [--settings 4,2 5,0]
+        [--settings 4,2 5,0 3,2,0]
 
-``--settings``: ``lift_top,recheck_top`` pairs (default: the module's ``LIFT_TOP,RECHECK_TOP``), each
-timed on every view right after the others, so that they compare under the same load.
+``--settings``: ``lift_top,recheck_top[,hedge]`` (default: the module's ``LIFT_TOP,RECHECK_TOP``;
+``hedge``: how far below the level every other sample is meshed, default ``HEDGE``), each timed on
+every view right after the others, so that they compare under the same load.
 
 Wall-clock times depend on what else runs on the machine; "cpu s" is the CPU time of this process
 and its workers together, a load-independent figure (on idle cores the wall time is about it
@@ -44,22 +45,25 @@ def main() -> None:
     ap.add_argument("--grasps", type=int, default=20)
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--settings", nargs="+", default=None, help="lift_top,recheck_top pairs to time")
+    ap.add_argument("--settings", nargs="+", default=None, help="lift_top,recheck_top[,hedge] to time")
     args = ap.parse_args()
 
     from shapeviewer.evaluation.run import grasp_world
     from shapeviewer.evaluation.viewsets import TABLETOP_SETS, render_view, sample_views
     from shapeviewer.grasp.plan import plan
-    from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, rank_robust, robustness, sample_meshes
+    from shapeviewer.grasp.robust import HEDGE, LIFT_TOP, RECHECK_TOP, rank_robust, robustness, sample_meshes
     from shapeviewer.model import load_completer
     from shapeviewer.voxel import context_grids, partial_to_grid
 
     completer = load_completer()
     kind = "tabletop" if args.set in TABLETOP_SETS else "paper"
     views = [v for v in sample_views(args.views, args.seed, kind) if v[2] == args.set]
-    settings = [tuple(map(int, s.split(","))) for s in (args.settings or [f"{LIFT_TOP},{RECHECK_TOP}"])]
+    settings = [
+        (int(v[0]), int(v[1]), float(v[2]) if len(v) > 2 else HEDGE)
+        for v in (s.split(",") for s in (args.settings or [f"{LIFT_TOP},{RECHECK_TOP}"]))
+    ]
     print(
-        f"{'view':36s} {'setting':>7s} {'faces':>6s} {'grasps':>6s} {'wall s':>7s} {'cpu s':>6s} {'held':>5s}"
+        f"{'view':36s} {'setting':>9s} {'faces':>6s} {'grasps':>6s} {'wall s':>7s} {'cpu s':>6s} {'held':>5s}"
         f" {'top held':>8s} {'robust top':>10s}"
     )
     walls: dict[tuple, list[float]] = {s: [] for s in settings}
@@ -75,36 +79,39 @@ def main() -> None:
         samples = completer.predict_samples(grid, 8, context=context)
         plane = observed.support_plane
         T_world_cam, table = grasp_world({"support_plane": None if plane is None else list(plane)})
-        meshes = sample_meshes(samples, frame, T_world_cam)
-        grasps = plan(meshes[0], n_grasps=args.grasps, seed=args.seed, table=table).grasps
+        meshes = {h: sample_meshes(samples, frame, T_world_cam, hedge=h) for h in {s[2] for s in settings}}
+        first = next(iter(meshes.values()))[0]  # sample 0 is meshed at the level whatever the hedge
+        grasps = plan(first, n_grasps=args.grasps, seed=args.seed, table=table).grasps
         if not grasps:
             print(f"(skipping {name} {view}: no grasp planned)")
             continue
-        for lift_top, recheck_top in settings:
+        for setting in settings:
+            lift_top, recheck_top, hedge = setting
             cpu, t = cpu_seconds(), time.perf_counter()
             scores = robustness(
                 grasps,
-                meshes,
-                meshes[0],
+                meshes[hedge],
+                meshes[hedge][0],
                 table=table,
                 processes=args.processes,
                 lift_top=lift_top,
                 recheck_top=recheck_top,
             )
-            walls[lift_top, recheck_top].append(time.perf_counter() - t)
-            cpus[lift_top, recheck_top].append(cpu_seconds() - cpu)
+            walls[setting].append(time.perf_counter() - t)
+            cpus[setting].append(cpu_seconds() - cpu)
             order = rank_robust(scores, [g.lift for g in grasps])
             best = scores[order[0]]
             print(
-                f"{name + ' ' + str(view):36s} {lift_top:>4d},{recheck_top:<2d} {len(meshes[0].faces):6d}"
-                f" {len(grasps):6d} {walls[lift_top, recheck_top][-1]:7.2f} {cpus[lift_top, recheck_top][-1]:6.2f}"
+                f"{name + ' ' + str(view):36s} {f'{lift_top},{recheck_top},{hedge:g}':>9s}"
+                f" {len(meshes[hedge][0].faces):6d}"
+                f" {len(grasps):6d} {walls[setting][-1]:7.2f} {cpus[setting][-1]:6.2f}"
                 f" {np.mean([s.fraction for s in scores]):5.2f} {scores[0].fraction:8.2f}"
                 f" {order[0]:>4d} ({best.fraction:.2f}, lifted {best.lifted if best.lifted is not None else 0:.2f})"
             )
     print()
     for s in settings:
         print(
-            f"lift_top {s[0]}, recheck_top {s[1]}: median over {len(walls[s])} views"
+            f"lift_top {s[0]}, recheck_top {s[1]}, hedge {s[2]:g}: median over {len(walls[s])} views"
             f" {statistics.median(walls[s]):.2f} s wall with {args.processes} processes (target 3),"
             f" {statistics.median(cpus[s]):.2f} s CPU"
         )
