@@ -28,6 +28,7 @@ import statistics
 import time
 
 import numpy as np
+from ranking import setting_options
 
 
 def cpu_seconds() -> float:
@@ -58,16 +59,13 @@ def main() -> None:
     completer = load_completer()
     kind = "tabletop" if args.set in TABLETOP_SETS else "paper"
     views = [v for v in sample_views(args.views, args.seed, kind) if v[2] == args.set]
-    settings = [
-        (int(v[0]), int(v[1]), float(v[2]) if len(v) > 2 else HEDGE)
-        for v in (s.split(",") for s in (args.settings or [f"{LIFT_TOP},{RECHECK_TOP}"]))
-    ]
+    settings = {s: {"hedge": HEDGE} | setting_options(s) for s in (args.settings or [f"{LIFT_TOP},{RECHECK_TOP}"])}
     print(
         f"{'view':36s} {'setting':>9s} {'faces':>6s} {'grasps':>6s} {'wall s':>7s} {'cpu s':>6s} {'held':>5s}"
         f" {'top held':>8s} {'robust top':>10s}"
     )
-    walls: dict[tuple, list[float]] = {s: [] for s in settings}
-    cpus: dict[tuple, list[float]] = {s: [] for s in settings}
+    walls: dict[str, list[float]] = {s: [] for s in settings}
+    cpus: dict[str, list[float]] = {s: [] for s in settings}
     for name, view, view_set in views:
         try:
             observed = render_view(name, view, view_set, args.seed)
@@ -79,14 +77,16 @@ def main() -> None:
         samples = completer.predict_samples(grid, 8, context=context)
         plane = observed.support_plane
         T_world_cam, table = grasp_world({"support_plane": None if plane is None else list(plane)})
-        meshes = {h: sample_meshes(samples, frame, T_world_cam, hedge=h) for h in {s[2] for s in settings}}
+        meshes = {
+            h: sample_meshes(samples, frame, T_world_cam, hedge=h) for h in {o["hedge"] for o in settings.values()}
+        }
         first = next(iter(meshes.values()))[0]  # sample 0 is meshed at the level whatever the hedge
         grasps = plan(first, n_grasps=args.grasps, seed=args.seed, table=table).grasps
         if not grasps:
             print(f"(skipping {name} {view}: no grasp planned)")
             continue
-        for setting in settings:
-            lift_top, recheck_top, hedge = setting
+        for setting, options in settings.items():
+            hedge = options["hedge"]
             cpu, t = cpu_seconds(), time.perf_counter()
             scores = robustness(
                 grasps,
@@ -94,24 +94,26 @@ def main() -> None:
                 meshes[hedge][0],
                 table=table,
                 processes=args.processes,
-                lift_top=lift_top,
-                recheck_top=recheck_top,
+                lift_top=options["lift_top"],
+                recheck_top=options["recheck_top"],
             )
             walls[setting].append(time.perf_counter() - t)
             cpus[setting].append(cpu_seconds() - cpu)
             order = rank_robust(scores, [g.lift for g in grasps])
             best = scores[order[0]]
+            label = f"{options['lift_top']},{options['recheck_top']},{hedge:g}"
             print(
-                f"{name + ' ' + str(view):36s} {f'{lift_top},{recheck_top},{hedge:g}':>9s}"
+                f"{name + ' ' + str(view):36s} {label:>9s}"
                 f" {len(meshes[hedge][0].faces):6d}"
                 f" {len(grasps):6d} {walls[setting][-1]:7.2f} {cpus[setting][-1]:6.2f}"
                 f" {np.mean([s.fraction for s in scores]):5.2f} {scores[0].fraction:8.2f}"
                 f" {order[0]:>4d} ({best.fraction:.2f}, lifted {best.lifted if best.lifted is not None else 0:.2f})"
             )
     print()
-    for s in settings:
+    for s, o in settings.items():
         print(
-            f"lift_top {s[0]}, recheck_top {s[1]}, hedge {s[2]:g}: median over {len(walls[s])} views"
+            f"lift_top {o['lift_top']}, recheck_top {o['recheck_top']}, hedge {o['hedge']:g}:"
+            f" median over {len(walls[s])} views"
             f" {statistics.median(walls[s]):.2f} s wall with {args.processes} processes (target 3),"
             f" {statistics.median(cpus[s]):.2f} s CPU"
         )

@@ -182,9 +182,9 @@ def test_every_other_sample_is_meshed_where_the_network_hedges():
     T[:3, 3] = [1.0, 2.0, 3.0]
     meshes = sample_meshes(np.stack([p] * 4), frame, T, level=0.5, hedge=0.2)
     assert all(m.is_watertight for m in meshes)
+    centre = frame.to_metres(np.full((1, 3), 20.0))[0] + T[:3, 3]
     for k, mesh in enumerate(meshes):
         np.testing.assert_allclose(mesh.extents, (10 if k % 2 == 0 else 18) * 0.005, atol=0.006)
-        centre = frame.to_metres(np.full((1, 3), 20.0))[0] + T[:3, 3]
         np.testing.assert_allclose(mesh.bounds.mean(0), centre, atol=0.003)
     flat = sample_meshes(np.stack([p] * 2), frame, T, level=0.5, hedge=0.0)
     np.testing.assert_allclose([m.extents for m in flat], 10 * 0.005, atol=0.006)
