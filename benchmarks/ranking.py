@@ -38,20 +38,33 @@ import numpy as np
 from shares import add, new_shares, print_shares
 
 
-def rerank(root: Path, record: dict, method: str, grasps: list, options: dict) -> int:
+def rerank(root: Path, record: dict, method: str, grasps: list, wider: dict | None, options: dict) -> int:
     """The index of a view's best grasp by today's :func:`~shapeviewer.grasp.robust.robustness`
-    (with ``options``), on its saved ``grasps`` and sample completions (the evaluation's own robust step)."""
+    (with ``options``), on its saved ``grasps`` and sample completions (the evaluation's own robust
+    step). ``wider``: the grasp file's ``meta["wider"]`` when it holds the wider search's grasps
+    (after the first ``wider["first"]``, planned on the envelope): they are scored against the
+    envelope and compete when the first grasps' best is weak, as in the evaluation. A view that
+    becomes weak only under ``options`` has no wider grasps saved to compete."""
     from shapeviewer.evaluation.records import samples_file, view_stem
-    from shapeviewer.evaluation.run import grasp_meshes, robust_ranking
+    from shapeviewer.evaluation.run import grasp_meshes, sample_completions
+    from shapeviewer.grasp.robust import is_weak, rank_robust, robustness
 
     if not grasps:
         # A view without grasps fails whatever the pick; and a StopIteration from next() below
         # would silently end the pool's chunk of results.
         return 0
+    hedge = options.pop("hedge", None)
     completion, _, T_world_cam, table = grasp_meshes(root, record, method)
-    samples = root / samples_file(view_stem(record["object"], int(record["view"])))
-    ranked = robust_ranking(samples, grasps, completion, T_world_cam, table, **options)
-    return next(i for i, r in enumerate(ranked) if r["rank"] == 0)
+    samples = sample_completions(
+        root / samples_file(view_stem(record["object"], int(record["view"]))), T_world_cam, hedge=hedge
+    )
+    first = len(grasps) if wider is None else int(wider["first"])
+    scores = robustness(grasps[:first], samples, completion, table=table, **options)
+    if wider is not None and is_weak(scores, [g.lift for g in grasps[:first]], below=float(wider["below"])):
+        record = {**record, "files": {**record["files"], "envelope": wider["planned_on"]}}
+        envelope = grasp_meshes(root, record, "envelope")[0]
+        scores += robustness(grasps[first:], samples, envelope, table=table, **options)
+    return rank_robust(scores, [g.lift for g in grasps[: len(scores)]])[0]
 
 
 def setting_options(setting: str) -> dict:
@@ -97,7 +110,10 @@ def main() -> None:
     if args.rerank:
         with mp.get_context("fork").Pool(args.processes) as pool:
             for label, options in settings.items():
-                jobs = [(root, record, args.method, gs.grasps, options) for root, record, gs in views]
+                jobs = [
+                    (root, record, args.method, gs.grasps, gs.meta.get("wider"), dict(options))
+                    for root, record, gs in views
+                ]
                 reranked[label] = pool.starmap(rerank, jobs)
     for k, (_, record, gs) in enumerate(views):
         lifted = [bool(e.lift is not None and e.lift.success) for e in gs.executions]

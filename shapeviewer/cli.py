@@ -401,6 +401,7 @@ def cmd_evaluate(args) -> int:
             n_grasps=args.n_grasps,
             budget_seconds=args.grasp_budget,
             robust=args.robust,
+            widen_below=args.widen_below,
         )
     r = evaluate(
         args.out,
@@ -645,6 +646,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --grasps: also rank the grasps of Ours-fast, Ours-detailed and Ours-envelope by robustness "
         "over the CNN's 8 sample completions, grasped with the palm a few mm off and lifted (Table V's "
         "'(robust)' best grasp, the same grasps)",
+    )
+    s.add_argument(
+        "--widen-below",
+        type=float,
+        default=None,
+        metavar="SHARE",
+        help="with --robust: when the most robust grasp lifts fewer than this share of its sample tests, plan "
+        "as many again on the grasp envelope and rank them with the first (default: 0.8; 0: never)",
     )
     s.add_argument(
         "--grasp-methods",

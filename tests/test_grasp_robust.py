@@ -190,12 +190,16 @@ def test_every_other_sample_is_meshed_where_the_network_hedges():
     np.testing.assert_allclose([m.extents for m in flat], 10 * 0.005, atol=0.006)
 
 
-def _robust_evaluation(folder, methods: tuple[str, ...]):
+def _robust_evaluation(folder, methods: tuple[str, ...], widen_below: float | None = None):
     """One paper view evaluated with a small grasp search, ranked by robustness: ``(options,
     tables, object name, view, view stem)``."""
     views = ev.sample_views(1, seed=0)[:1]
     options = ev.GraspOptions(
-        methods=methods, n_grasps=3, settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8), robust=True
+        methods=methods,
+        n_grasps=3,
+        settings=PlanSettings(samples=256, chains=16, steps=10, simulate=8),
+        robust=True,
+        widen_below=widen_below,
     )
     assert ev.run_views(folder, views, workers=1, grasps=options, progress=False) == 1
     tables = ev.write_tables(folder, views, seed=0)
@@ -211,7 +215,7 @@ def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
     assert entry["error"] == "" and entry["robust"] and entry["n"] >= 1
     assert entry["lift_success_best_robust"] in (0.0, 1.0) and entry["seconds_robust"] > 0
     meta = json.loads((tmp_path / entry["file"]).read_text())["meta"]
-    assert sorted(r["rank"] for r in meta["robustness"]) == list(range(entry["n"]))
+    assert sorted(r["rank"] for r in meta["robustness"]) == list(range(entry["n"] + entry["n_wider"]))
     assert all(len(r["epsilons"]) == 8 and 0 <= r["fraction"] <= 1 for r in meta["robustness"])
     # The robust best grasp is one of the executed grasps: its lift is the row's.
     rows = list(csv.DictReader(open(tmp_path / "grasp_rows.csv")))
@@ -227,6 +231,34 @@ def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
     assert ev.pending_grasps(record, options) == [] and "Ours-fast" not in ev.pending_grasps(record, ev.GraspOptions())
     plain = {**entry, "robust": False}
     assert ev.pending_grasps({"grasps": [plain]}, options) == ["Ours-fast"]
+
+
+def test_evaluate_widens_the_search_when_no_grasp_holds_up_on_the_samples(tmp_path):
+    """When even the most robust grasp lifts too few of its sample tests (here: any share below
+    101 %, so always), as many grasps again are planned on the grasp envelope, executed on the true
+    mesh and ranked with the first; the planner's best and the means over grasps stay the
+    completion's own, and a threshold of 0 never widens."""
+    _, tables, name, view, stem = _robust_evaluation(tmp_path, ("Ours-fast",), widen_below=1.01)
+    (entry,) = rec.load_view(tmp_path, name, view)["grasps"]
+    assert entry["error"] == "" and entry["n"] >= 1 and entry["n_wider"] >= 1
+    saved = json.loads((tmp_path / entry["file"]).read_text())
+    wider = saved["meta"]["wider"]
+    assert wider["first"] == entry["n"] and wider["planned_on"] == rec.envelope_file(stem)
+    assert (tmp_path / wider["planned_on"]).is_file()
+    n = entry["n"] + entry["n_wider"]
+    assert len(saved["grasps"]) == n and sorted(r["rank"] for r in saved["meta"]["robustness"]) == list(range(n))
+    rows = list(csv.DictReader(open(tmp_path / "grasp_rows.csv")))
+    assert [float(r["wider"]) for r in rows] == [0.0] * entry["n"] + [1.0] * entry["n_wider"]
+    assert all(math.isnan(float(r["rank"])) for r in rows[entry["n"] :])  # not the planner's: no planner's rank
+    best = next(r for r in rows if float(r["robust_rank"]) == 0)
+    assert float(best["lift_success"]) == entry["lift_success_best_robust"]
+    cell = tables["grasp_summary"]["barrett"]["all"]["Ours-fast"]
+    assert cell["grasps"] == entry["n"] and cell["lift_success_best_robust"] == entry["lift_success_best_robust"]
+    assert cell["lift_success_best"] == float(rows[0]["lift_success"])
+
+    options, *_ = _robust_evaluation(tmp_path / "never", ("Ours-fast",), widen_below=0.0)
+    (entry,) = rec.load_view(tmp_path / "never", name, view)["grasps"]
+    assert entry["n_wider"] == 0 and "wider" not in json.loads((tmp_path / "never" / entry["file"]).read_text())["meta"]
 
 
 def test_evaluate_grasps_the_envelope_of_the_samples(tmp_path):

@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 from shapeviewer.camera import transform_points
-from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, rank_robust, robustness
+from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, WIDEN_BELOW, rank_robust, robustness
 from shapeviewer.grasp.serialize import grasps_from_json
 from shapeviewer.viewer import grasps as G
 from shapeviewer.viewer.session import Session
@@ -245,6 +245,7 @@ def test_json_export_round_trips_with_executions(app, planned):
 def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
     sid = planned.segment_id
     panel = app.grasps.panel
+    app.grasps.widen_below = 0.0  # the ranking of the planned grasps alone (the wider search: below)
     assert app.grasps.current == sid and not panel.rank.disabled  # the listed segment has grasps
     # Cancelled before the first sample: no scores, the planner's order stays.
     job = app.grasps.rank(sid, wait=False)
@@ -297,6 +298,41 @@ def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
     # Callbacks cannot come back from forked workers.
     with pytest.raises(ValueError, match="processes=1"):
         robustness(planned.grasps, [planned.mesh_world], planned.mesh_world, processes=2, cancel=lambda: False)
+
+
+def test_rank_widens_the_search_to_the_envelope_when_no_grasp_holds_up(app, planned):
+    """When the most robust grasp lifts too few of its sample tests (here any share below 101 %, so
+    always), Rank by robustness plans as many grasps again on the grasp envelope, draws and ranks
+    them with the first and says so; ranking again re-scores the same grasps."""
+    sid = planned.segment_id
+    first = list(planned.grasps)
+    n = len(first)
+    app.grasps.widen_below = 1.01
+    try:
+        job = app.grasps.rank(sid)
+        assert job is not None and job.error is None, job.error
+        scores = job.result
+        assert planned.wider_from == n and planned.grasps[:n] == first and len(planned.grasps) > n
+        m = len(planned.grasps) - n
+        assert len(scores) == len(planned.grasps) == len(planned.executions) and planned.robustness is scores
+        # Each set had its LIFT_TOP most robust lifted on the samples.
+        assert sum(r.lifted is not None for r in scores) == min(LIFT_TOP, n) + min(LIFT_TOP, m)
+        envelope = app.grasps.host.mesh("envelope", sid).copy().apply_transform(app.scene.T_world_cam)
+        for k in range(n, n + m):
+            g = planned.grasps[k]
+            assert np.allclose(node(app, f"/grasps/seg_{sid}/g{k}").position, g.T_world_palm[:3, 3])
+            assert np.min(np.linalg.norm(envelope.vertices - g.position, axis=1)) < 0.1  # at the envelope
+        best = rank_robust(scores, [g.lift for g in planned.grasps])[0]
+        options = list(app.grasps.panel.grasp.options)
+        assert options[0].startswith(f"#{best + 1}") and app.grasps.selected == best
+        assert sum(o.split("  ")[0].endswith(" envelope") for o in options) == m
+        assert f"the wider search planned #{n + 1}-#{n + m} on the grasp envelope" in app.grasps.panel.info.content
+        assert json.loads(app.export_grasps(sid, "json")[1])["meta"]["wider_from"] == n
+        again = app.grasps.rank(sid)
+        assert again is not None and again.error is None and len(planned.grasps) == n + m
+        assert rank_robust(again.result, [g.lift for g in planned.grasps])[0] == best
+    finally:
+        app.grasps.widen_below = WIDEN_BELOW
 
 
 def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(app, planned, monkeypatch):

@@ -84,6 +84,7 @@ GRASP_ROW_FIELDS = (
     "robust_fraction",
     "robust_epsilon_low",
     "robust_lifted",
+    "wider",
 )
 
 
@@ -255,26 +256,32 @@ def upgrade_old_views(root, views, seed: int) -> None:
             save_view(root, {**parse_view_file(text, root), "seed": int(seed)})
 
 
-def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = None) -> list[dict]:
+def grasp_rows(
+    base: dict, grasps, executions, robustness: list[dict] | None = None, first_round: int | None = None
+) -> list[dict]:
     """One row (:data:`GRASP_ROW_FIELDS`) per planned grasp and its execution on the true object.
 
     ``base``: object, view, view_set, method, hand. ``robustness``: per grasp, a grasp file's
     ``meta["robustness"]`` entry (``{"rank"`` by robustness, 0 first, ``"fraction"`` of sample
     completions it holds on, ``"epsilon_low"``, ``"epsilons"``, ``"lifted"``: the share of them it
     lifted, None when not lifted``}``, :mod:`grasp.robust`), or None when
-    the grasps were not ranked by robustness (the robust columns are then NaN). ``lift_planned``:
+    the grasps were not ranked by robustness (the robust columns are then NaN). ``first_round``:
+    how many of the grasps were planned on the completion; those after it come from the wider
+    search on the grasp envelope (a grasp file's ``meta["wider"]["first"]``; None: there are none),
+    and their rows have ``wider`` 1 and no planner's ``rank`` (NaN). ``lift_planned``:
     the planner's lift check on the completion (NaN: not run). Units: joint error
     in degrees (mm for the Panda's prismatic fingers), pose error, lift rise and slip in mm;
     booleans as 0/1.
     """
     rows = []
+    first = len(grasps) if first_round is None else first_round
     for rank, (g, e) in enumerate(zip(grasps, executions)):
         lift = e.lift
         robust = robustness[rank] if robustness is not None else {}
         rows.append(
             {
                 **base,
-                "rank": rank,
+                "rank": rank if rank < first else math.nan,
                 "epsilon_planned": float(g.epsilon),
                 "volume_planned": float(g.volume),
                 "energy_planned": float(g.energy),
@@ -292,6 +299,7 @@ def grasp_rows(base: dict, grasps, executions, robustness: list[dict] | None = N
                 "robust_fraction": float(robust.get("fraction", math.nan)),
                 "robust_epsilon_low": float(robust.get("epsilon_low", math.nan)),
                 "robust_lifted": math.nan if robust.get("lifted") is None else float(robust["lifted"]),
+                "wider": float(rank >= first),
             }
         )
     return rows
@@ -315,5 +323,7 @@ def load_grasp_rows(root, records: list[dict]) -> list[dict]:
                 "method": g["method"],
                 "hand": g["hand"],
             }
-            rows += grasp_rows(base, gs.grasps, gs.executions, gs.meta.get("robustness"))
+            wider = gs.meta.get("wider")
+            first = None if wider is None else int(wider["first"])
+            rows += grasp_rows(base, gs.grasps, gs.executions, gs.meta.get("robustness"), first)
     return rows

@@ -203,8 +203,11 @@ class GraspOptions:
     """The grasp stage of :func:`evaluate`: the ``methods`` grasped (completions, and ``Ours-envelope``,
     the grasp envelope of the CNN's sample completions), the ``hand``, grasps
     planned per view and method, the planner's wall-clock ``budget_seconds`` (None: its full
-    deterministic search), its search sizes (``settings``; None: the planner's defaults), and
-    whether the grasps of :data:`ROBUST_METHODS` are also ranked by robustness (``robust``)."""
+    deterministic search), its search sizes (``settings``; None: the planner's defaults), whether
+    the grasps of :data:`ROBUST_METHODS` are also ranked by robustness (``robust``), and below
+    which lift share of the most robust grasp on the samples as many grasps again are planned on
+    the grasp envelope and ranked with them (``widen_below``; None: :data:`grasp.robust.WIDEN_BELOW`,
+    0: never; not for the envelope's own grasps)."""
 
     methods: tuple[str, ...] = GRASP_METHODS
     hand: str = "barrett"
@@ -212,6 +215,7 @@ class GraspOptions:
     budget_seconds: float | None = None
     settings: PlanSettings | None = None
     robust: bool = False
+    widen_below: float | None = None
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in GRASP_METHODS]
@@ -284,8 +288,13 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
 
     Both meshes are read from ``out_dir`` (camera frame) and moved to the grasp world of
     :func:`grasp_world`. The grasps, planned and executed, go to ``grasp_file(...)`` with the frame
-    in their ``meta`` (and, ranked by robustness, ``meta["robustness"]``: :func:`robust_ranking`).
-    Returns the view's entry: ``{"method", "hand", "file", "n", <GRASP_MEANS means>,
+    in their ``meta`` (and, ranked by robustness, ``meta["robustness"]``: :func:`robust_entries`).
+    When even the most robust grasp is weak (:func:`~shapeviewer.grasp.robust.is_weak`), as many
+    grasps again are planned on the grasp envelope, executed, scored over the same samples and
+    ranked with the first: they follow them in the file, ``meta["wider"]`` says from which index,
+    and only the robust ranking sees them (the planner's best and the means over grasps are the
+    completion's own).
+    Returns the view's entry: ``{"method", "hand", "file", "n", "n_wider", <GRASP_MEANS means>,
     "lift_success_best", "robust", "lift_success_best_robust", "n_requested", "plan_seed",
     "seconds_plan", "seconds_execute", "seconds_robust", "frame", "error"}``: ``robust`` says whether
     the grasps were ranked by robustness (the options ask for it and ``method`` is one of
@@ -295,6 +304,7 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
     """
     from ..grasp.execute import execute_grasps
     from ..grasp.plan import PlanSettings, plan
+    from ..grasp.robust import WIDEN_BELOW, is_weak, robustness
     from ..grasp.serialize import grasps_to_json
 
     out = Path(out_dir)
@@ -305,6 +315,7 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
         "hand": options.hand,
         "file": "",
         "n": 0,
+        "n_wider": 0,
         **grasp_means([]),
         "lift_success_best": math.nan,
         "robust": options.robust and method in ROBUST_METHODS,
@@ -327,23 +338,35 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
             record = {**record, "files": {**record["files"], ENVELOPE: write_envelope(out, record)}}
         completion, truth, T_world_cam, table = grasp_meshes(out, record, method)
         t0 = time.perf_counter()
-        result = plan(
-            completion,
-            hand=options.hand,
-            n_grasps=options.n_grasps,
-            seed=seed,
-            table=table,
-            budget_seconds=options.budget_seconds,
-            settings=options.settings or PlanSettings(),
-        )
+
+        def plan_on(mesh):
+            return plan(
+                mesh,
+                hand=options.hand,
+                n_grasps=options.n_grasps,
+                seed=seed,
+                table=table,
+                budget_seconds=options.budget_seconds,
+                settings=options.settings or PlanSettings(),
+            )
+
+        result = plan_on(completion)
         t1 = time.perf_counter()
         executions = execute_grasps(result.grasps, truth, table=table, lift=True)
         t2 = time.perf_counter()
-        robustness = (
-            robust_ranking(out / samples_file(view_stem(name, view)), result.grasps, completion, T_world_cam, table)
-            if entry["robust"]
-            else None
-        )
+        grasps, scores, wider = list(result.grasps), None, None
+        if entry["robust"]:
+            samples = sample_completions(out / samples_file(view_stem(name, view)), T_world_cam)
+            scores = robustness(grasps, samples, completion, table=table)
+            below = WIDEN_BELOW if options.widen_below is None else options.widen_below
+            if method != ENVELOPE and below > 0 and is_weak(scores, [g.lift for g in grasps], below=below):
+                # No grasp holds on most samples: as many again on the grasp envelope, ranked with them.
+                envelope_rel = write_envelope(out, record)
+                envelope = _world_mesh(out / envelope_rel, T_world_cam)
+                wider = plan_on(envelope)
+                executions += execute_grasps(wider.grasps, truth, table=table, lift=True)
+                scores += robustness(wider.grasps, samples, envelope, table=table)
+                grasps += wider.grasps
         t3 = time.perf_counter()
     except Exception as e:  # one mesh the planner cannot handle must not stop the run
         entry["error"] = f"{type(e).__name__}: {e}"
@@ -368,19 +391,28 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
             "cancelled": result.stats.cancelled,
         },
     }
-    if robustness is not None:
-        meta["robustness"] = robustness
-    atomic_write(out / rel, grasps_to_json(result.grasps, executions, meta))
+    robust = None if scores is None else robust_entries(scores, [g.lift for g in grasps])
+    if robust is not None:
+        meta["robustness"] = robust
+    if wider is not None:
+        meta["wider"] = {
+            "planned_on": envelope_rel,
+            "first": len(result.grasps),
+            "below": below,
+            "plan_stats": {"evaluations": wider.stats.evaluations, "seconds": wider.stats.seconds},
+        }
+    atomic_write(out / rel, grasps_to_json(grasps, executions, meta))
     base = {"object": name, "view": view, "view_set": record["view_set"], "method": method, "hand": options.hand}
-    rows = grasp_rows(base, result.grasps, executions, robustness)
+    rows = grasp_rows(base, grasps, executions, robust, first_round=len(result.grasps))
     entry.update(
         file=rel,
         n=len(result.grasps),
-        **grasp_means(rows),
+        n_wider=0 if wider is None else len(wider.grasps),
+        **grasp_means(rows[: len(result.grasps)]),
         seconds_plan=t1 - t0,
         seconds_execute=t2 - t1,
     )
-    if robustness is not None:
+    if robust is not None:
         # As for the planner's best grasp, a view without grasps counts as a failed lift.
         entry["lift_success_best_robust"] = next((r["lift_success"] for r in rows if r["robust_rank"] == 0), 0.0)
         entry["seconds_robust"] = t3 - t2
@@ -417,21 +449,23 @@ def write_envelope(out_dir, record: dict) -> str:
     return rel
 
 
-def robust_ranking(
-    samples: Path, grasps, completion, T_world_cam: np.ndarray, table: bool, *, hedge: float | None = None, **options
-) -> list[dict]:
-    """Each grasp's robustness over a view's sample completions (the file ``samples``, see
-    :func:`records.samples_file`, meshed and moved to the grasp world by ``T_world_cam``) and its
-    rank by it (0 first), as a grasp file's ``meta["robustness"]`` (:func:`records.grasp_rows`).
-    ``grasps`` were planned on ``completion`` (the grasp world, metres), on the table if ``table``;
-    ``hedge`` goes to :func:`~shapeviewer.grasp.robust.sample_meshes` (None: its default), ``options`` to
-    :func:`~shapeviewer.grasp.robust.robustness` (``lift_top``, ``recheck_top``...)."""
-    from ..grasp.robust import HEDGE, rank_robust, robustness, sample_meshes
+def sample_completions(samples: Path, T_world_cam: np.ndarray, *, hedge: float | None = None) -> list:
+    """A view's sample completions (the file ``samples``, see :func:`records.samples_file`) meshed
+    as the robust ranking meshes them (:func:`~shapeviewer.grasp.robust.sample_meshes`; ``hedge``
+    None: its default) and moved to the grasp world by ``T_world_cam`` (metres)."""
+    from ..grasp.robust import HEDGE, sample_meshes
 
     grids, frame, level = load_samples(samples)
-    meshes = sample_meshes(grids, frame, T_world_cam, level=level, hedge=HEDGE if hedge is None else hedge)
-    scores = robustness(grasps, meshes, completion, table=table, **options)
-    rank = {i: k for k, i in enumerate(rank_robust(scores, [g.lift for g in grasps]))}
+    return sample_meshes(grids, frame, T_world_cam, level=level, hedge=HEDGE if hedge is None else hedge)
+
+
+def robust_entries(scores, lifts) -> list[dict]:
+    """Each grasp's robustness (``scores``, :func:`~shapeviewer.grasp.robust.robustness`) and its
+    rank by it after the planner's ``lifts`` (0 first), as a grasp file's ``meta["robustness"]``
+    (:func:`records.grasp_rows`)."""
+    from ..grasp.robust import rank_robust
+
+    rank = {i: k for k, i in enumerate(rank_robust(scores, lifts))}
     return [{"rank": rank[i], **dataclasses.asdict(s)} for i, s in enumerate(scores)]
 
 

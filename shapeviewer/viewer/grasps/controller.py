@@ -17,7 +17,15 @@ import viser
 from ...grasp.execute import ExecutionResult, execute_grasps
 from ...grasp.hands import HAND_NAMES
 from ...grasp.plan import plan
-from ...grasp.robust import ROBUST_QUANTILE, Robustness, RobustnessCancelled, rank_robust, robustness
+from ...grasp.robust import (
+    ROBUST_QUANTILE,
+    WIDEN_BELOW,
+    Robustness,
+    RobustnessCancelled,
+    is_weak,
+    rank_robust,
+    robustness,
+)
 from ...grasp.serialize import grasps_to_json, scene_zip
 from ...processes import ProcessPool
 from ..audience import Audience
@@ -70,6 +78,11 @@ class GraspController:
         host: see :class:`GraspHost`.
         pool: the worker processes grasp jobs compute in (shared by the sessions).
         order: where the Grasps folder goes among the panel's folders.
+
+    Attributes:
+        widen_below: "Rank by robustness" plans as many grasps again on the grasp envelope when
+            the most robust grasp lifts fewer than this share of its sample tests
+            (:func:`~shapeviewer.grasp.robust.is_weak`; 0: never).
     """
 
     def __init__(self, audience: Audience, host: GraspHost, pool: ProcessPool, order: float | None = None) -> None:
@@ -83,6 +96,7 @@ class GraspController:
         self.selected: int | None = None  # index of the selected grasp in that segment's list
         self._state = threading.RLock()  # guards sets/current/selected
         self._options: dict[str, int] = {}  # grasp dropdown entry -> index
+        self.widen_below = WIDEN_BELOW
         self._wire()
 
     @property
@@ -300,35 +314,85 @@ class GraspController:
         samples = self.host.samples(sid)
         if samples is None:
             raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
+        first = len(s.grasps) if s.wider_from is None else s.wider_from
         self.host.set_status(
-            f"_Re-closing {len(s.grasps)} grasps on {len(samples)} sample completions, then lifting the best..._"
+            f"_Re-closing {first} grasps on {len(samples)} sample completions, then lifting the best..._"
         )
         try:
-            scores = self.jobs.compute(job, robustness, s.grasps, samples, s.mesh_world, table=s.table)
+            scores = self.jobs.compute(job, robustness, s.grasps[:first], samples, s.mesh_world, table=s.table)
+            more = s.grasps[first:]
+            weak = self.widen_below > 0 and is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
+            if more or (s.method != "envelope" and weak):
+                more, more_scores = self._wider_search(job, scene, s, first, samples, more, client)
+                if more is None:
+                    return None
+                scores += more_scores
         except RobustnessCancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None
-        order = rank_robust(scores, [g.lift for g in s.grasps])
         with self._state:
             if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
                 return scores
+            if more:
+                known = s.executions[first:]  # a re-ranking keeps what the wider grasps did
+                s.grasps = s.grasps[:first] + more
+                s.executions = s.executions[:first] + (known if len(known) == len(more) else [None] * len(more))
+                s.wider_from = first
+                self.drawing.draw_segment(s)
             s.robustness = scores
+            order = rank_robust(scores, [g.lift for g in s.grasps])
             self.current, self.selected = sid, order[0]  # the user asked for the most robust one
             self._refresh_panel()
         best = scores[order[0]]
         self.host.notify(
             client,
             "Ranked by robustness",
-            f"Segment {sid}: grasp #{order[0] + 1} is the most robust; it holds on "
-            f"{round(best.fraction * len(samples))} of {len(samples)} sample completions"
+            f"Segment {sid}: grasp #{order[0] + 1} is the most robust"
+            + (" (planned on the grasp envelope)" if order[0] >= first else "")
+            + f"; it holds on {round(best.fraction * len(samples))} of {len(samples)} sample completions"
             + (
                 "."
                 if best.lifted is None
                 else f"; it lifted them in {round(best.lifted * best.lift_tests)} of {best.lift_tests} tests."
+            )
+            + (
+                f" No grasp of the {s.method} mesh lifted {self.widen_below:.0%} of its tests, so "
+                f"{len(more)} more were planned on the grasp envelope (#{first + 1}-#{first + len(more)})."
+                if more
+                else ""
             ),
             "green",
         )
         return scores
+
+    def _wider_search(
+        self,
+        job: GraspJob,
+        scene: LoadedScene,
+        s: SegmentGrasps,
+        first: int,
+        samples: list[trimesh.Trimesh],
+        more: list,
+        client: viser.ClientHandle | None,
+    ) -> tuple[list | None, list[Robustness]]:
+        """The ranking's wider search on segment ``s``: its grasps planned on the grasp envelope
+        (``more``, or as many as its first ``first`` when none were planned yet) and their scores over
+        ``samples`` against the envelope. ``(None, [])`` when planning was cancelled."""
+        sid = s.segment_id
+        envelope = self._mesh(sid, "envelope", client).copy()
+        envelope.apply_transform(scene.T_world_cam)
+        if not more:
+            self.host.set_status(
+                f"_No grasp lifted {self.widen_below:.0%} of its sample tests: planning {first} more on the grasp "
+                f"envelope of segment {sid}..._"
+            )
+            result = self.jobs.compute(job, plan, envelope, hand=s.hand, n_grasps=first, seed=s.seed, table=s.table)
+            if result.stats.cancelled or job.cancel_event.is_set():
+                self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
+                return None, []
+            more = result.grasps
+        self.host.set_status(f"_Re-closing the {len(more)} grasps of the envelope on the sample completions..._")
+        return more, self.jobs.compute(job, robustness, more, samples, envelope, table=s.table)
 
     # ------------------------------------------------------------------------------------------
     # Selection, export, scene changes
@@ -373,6 +437,8 @@ class GraspController:
             "ground_truth": s.truth_name,
             # The quantile each grasp's robustness.epsilon_low is of its epsilons over the samples.
             "robust_quantile": None if s.robustness is None else ROBUST_QUANTILE,
+            # Grasps from this index on were planned on the grasp envelope (the ranking's wider search).
+            "wider_from": s.wider_from,
         }
         stem = f"{scene.name}_seg{s.segment_id}_{s.method}_{s.hand}"
         if fmt == "json":

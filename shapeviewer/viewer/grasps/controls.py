@@ -85,7 +85,8 @@ def build_grasp_panel(gui: viser.GuiApi, order: float | None = None) -> GraspPan
             disabled=True,
             hint="Re-close every grasp on 8 sample completions (other plausible shapes of the unseen side), "
             "the hand a few mm off on each, lift the most robust on them, and list the grasps that lift "
-            "and hold most of them first",
+            "and hold most of them first; when none lifts most of them, as many again are planned on the "
+            "grasp envelope and ranked with them",
         )
         grasp = gui.add_dropdown("Grasp", (NO_GRASP,), hint="Select a grasp: it is highlighted and described below")
         show_all = gui.add_checkbox("Show all", True, hint="Show the other grasps dimmed (off: only the selected one)")

@@ -41,6 +41,9 @@ class SegmentGrasps:
         truth_world: the true object's world-frame mesh once executed.
         robustness: per grasp, how it fares re-closed on the completion's sample completions,
             once ranked by robustness (None before).
+        wider_from: the index from which ``grasps`` come from the ranking's wider search, planned
+            on the grasp envelope because no grasp of ``method`` held up on the samples
+            (:func:`~shapeviewer.grasp.robust.is_weak`); None when it did not run.
     """
 
     segment_id: int
@@ -55,6 +58,7 @@ class SegmentGrasps:
     truth_name: str | None = None
     truth_world: trimesh.Trimesh | None = None
     robustness: list[Robustness] | None = None
+    wider_from: int | None = None
 
     def __post_init__(self) -> None:
         if not self.executions:

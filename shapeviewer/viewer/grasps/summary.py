@@ -59,12 +59,18 @@ def grasp_options(s: SegmentGrasps) -> dict[str, int]:
     options = {}
     for k in order:
         g = s.grasps[k]
-        entry = f"#{k + 1}  ε {g.epsilon:.3f}" + ("" if g.force_closure else " (no closure)")
+        entry = f"#{k + 1}{' envelope' if _wider(s, k) else ''}  ε {g.epsilon:.3f}"
+        entry += "" if g.force_closure else " (no closure)"
         entry += " · lifts" if g.lifted else ""
         if s.robustness is not None:
             entry += f" · {_holds(s.robustness[k])}{_lifted(s.robustness[k])}"
         options[entry] = k
     return options
+
+
+def _wider(s: SegmentGrasps, k: int) -> bool:
+    """Whether grasp ``k`` of ``s`` comes from the ranking's wider search on the grasp envelope."""
+    return s.wider_from is not None and k >= s.wider_from
 
 
 def _lifts(s: SegmentGrasps) -> list[LiftResult | None]:
@@ -106,6 +112,12 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
             f"sample, the {RECHECK_TOP} best of them twice and first, by the share of tests that lift the sample; "
             f"then the share of samples it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
             "after those that lift the mesh."
+            + (
+                f" No grasp of the {s.method} mesh lifted most of its sample tests, so the wider search planned "
+                f"#{s.wider_from + 1}-#{len(s.grasps)} on the grasp envelope and ranked them with the others."
+                if s.wider_from is not None
+                else ""
+            )
         )
     if real_capture:
         lines.append("**No ground truth**: this is a real capture; grasps cannot be executed on the true object.")
@@ -129,7 +141,11 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
         f"\n\n**Grasp #{k + 1}** · ε **{_epsilon_text(g.epsilon)}** · volume {g.volume:.4f} · "
         f"{len(g.contacts)} contacts · energy {1000 * g.energy:.1f} mm  \n"
         f"palm ({x:.0f}, {y:.0f}, {z:.0f}) mm · approach ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})"
-        + ("" if g.lift is None else f"  \n**Lift check** on the {s.method} mesh: {_lift_text(g.lift)}")
+        + (
+            ""
+            if g.lift is None
+            else f"  \n**Lift check** on the {'envelope' if _wider(s, k) else s.method} mesh: {_lift_text(g.lift)}"
+        )
         + (f"  \n{_robustness_line(s.robustness, _lifts(s), k)}" if s.robustness else "")
         + "\n\n"
     )
