@@ -361,12 +361,17 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
             below = WIDEN_BELOW if options.widen_below is None else options.widen_below
             if method != ENVELOPE and below > 0 and is_weak(scores, [g.lift for g in grasps], below=below):
                 # No grasp holds on most samples: as many again on the grasp envelope, ranked with them.
-                envelope_rel = write_envelope(out, record)
-                envelope = _world_mesh(out / envelope_rel, T_world_cam)
-                wider = plan_on(envelope)
-                executions += execute_grasps(wider.grasps, truth, table=table, lift=True)
-                scores += robustness(wider.grasps, samples, envelope, table=table)
-                grasps += wider.grasps
+                try:
+                    envelope_rel = write_envelope(out, record)
+                    envelope = _world_mesh(out / envelope_rel, T_world_cam)
+                    wider = plan_on(envelope)
+                    more = execute_grasps(wider.grasps, truth, table=table, lift=True)
+                    more_scores = robustness(wider.grasps, samples, envelope, table=table)
+                except Exception:  # the completion's own grasps stand
+                    log.info("%s view %d: the wider search failed:\n%s", name, view, traceback.format_exc())
+                    wider = None
+                else:
+                    grasps, executions, scores = grasps + wider.grasps, executions + more, scores + more_scores
         t3 = time.perf_counter()
     except Exception as e:  # one mesh the planner cannot handle must not stop the run
         entry["error"] = f"{type(e).__name__}: {e}"

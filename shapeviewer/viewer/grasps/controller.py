@@ -323,7 +323,19 @@ class GraspController:
             more = s.grasps[first:]
             weak = self.widen_below > 0 and is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
             if more or (s.method != "envelope" and weak):
-                more, more_scores = self._wider_search(job, scene, s, first, samples, more, client)
+                try:
+                    more, more_scores = self._wider_search(job, scene, s, first, samples, more, client)
+                except RobustnessCancelled:
+                    raise
+                except Exception as e:  # the first grasps' ranking stands
+                    log.warning("segment %d: the wider search failed", sid, exc_info=True)
+                    self.host.notify(
+                        client,
+                        "Wider search failed",
+                        f"Segment {sid}: {e}. The {s.method} mesh's grasps are ranked alone.",
+                        "yellow",
+                    )
+                    more, more_scores = [], []
                 if more is None:
                     return None
                 scores += more_scores
@@ -333,11 +345,11 @@ class GraspController:
         with self._state:
             if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
                 return scores
-            if more:
+            if more or s.wider_from is not None:
                 known = s.executions[first:]  # a re-ranking keeps what the wider grasps did
                 s.grasps = s.grasps[:first] + more
                 s.executions = s.executions[:first] + (known if len(known) == len(more) else [None] * len(more))
-                s.wider_from = first
+                s.wider_from = first if more else None
                 self.drawing.draw_segment(s)
             s.robustness = scores
             order = rank_robust(scores, [g.lift for g in s.grasps])
