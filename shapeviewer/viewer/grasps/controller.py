@@ -16,7 +16,7 @@ import viser
 
 from ...grasp.execute import ExecutionResult, execute_grasps
 from ...grasp.hands import HAND_NAMES
-from ...grasp.plan import plan
+from ...grasp.plan import Grasp, plan
 from ...grasp.robust import (
     ROBUST_QUANTILE,
     WIDEN_BELOW,
@@ -324,7 +324,7 @@ class GraspController:
             weak = self.widen_below > 0 and is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
             if more or (s.method != "envelope" and weak):
                 try:
-                    more, more_scores = self._wider_search(job, scene, s, first, samples, more, client)
+                    wider = self._wider_search(job, scene, s, first, samples, more, client)
                 except RobustnessCancelled:
                     raise
                 except Exception as e:  # the first grasps' ranking stands
@@ -335,10 +335,11 @@ class GraspController:
                         f"Segment {sid}: {e}. The {s.method} mesh's grasps are ranked alone.",
                         "yellow",
                     )
-                    more, more_scores = [], []
-                if more is None:
+                    wider = ([], [])
+                if wider is None:
                     return None
-                scores += more_scores
+                more = wider[0]
+                scores += wider[1]
         except RobustnessCancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None
@@ -384,12 +385,12 @@ class GraspController:
         s: SegmentGrasps,
         first: int,
         samples: list[trimesh.Trimesh],
-        more: list,
+        more: list[Grasp],
         client: viser.ClientHandle | None,
-    ) -> tuple[list | None, list[Robustness]]:
+    ) -> tuple[list[Grasp], list[Robustness]] | None:
         """The ranking's wider search on segment ``s``: its grasps planned on the grasp envelope
         (``more``, or as many as its first ``first`` when none were planned yet) and their scores over
-        ``samples`` against the envelope. ``(None, [])`` when planning was cancelled."""
+        ``samples`` against the envelope; None when planning was cancelled."""
         sid = s.segment_id
         envelope = self._mesh(sid, "envelope", client).copy()
         envelope.apply_transform(scene.T_world_cam)
@@ -401,7 +402,7 @@ class GraspController:
             result = self.jobs.compute(job, plan, envelope, hand=s.hand, n_grasps=first, seed=s.seed, table=s.table)
             if result.stats.cancelled or job.cancel_event.is_set():
                 self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
-                return None, []
+                return None
             more = result.grasps
         self.host.set_status(f"_Re-closing the {len(more)} grasps of the envelope on the sample completions..._")
         return more, self.jobs.compute(job, robustness, more, samples, envelope, table=s.table)
