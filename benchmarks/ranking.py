@@ -68,7 +68,8 @@ def rerank(root: Path, record: dict, method: str, grasps: list, wider: dict | No
 
 
 def setting_options(setting: str) -> dict:
-    """``"3,2"`` or ``"3,2,0.2"`` as :func:`~shapeviewer.evaluation.run.robust_ranking`'s options."""
+    """``"3,2"`` or ``"3,2,0.2"`` as :func:`rerank`'s options: ``lift_top`` and ``recheck_top`` of
+    :func:`~shapeviewer.grasp.robust.robustness`, ``hedge`` of the sample meshes."""
     values = setting.split(",")
     if len(values) not in (2, 3):
         raise SystemExit(f"--settings {setting}: expected lift_top,recheck_top[,hedge]")

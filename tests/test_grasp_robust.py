@@ -206,6 +206,7 @@ def test_a_ranking_is_weak_when_its_most_robust_grasp_lifts_too_few_samples():
     assert not is_weak([Robustness.of(eps, lifted=0.75, lift_rounds=2)], [up], below=0.7)
     assert is_weak([Robustness.of(eps)], [up])  # scored by closure only, never lifted
     assert is_weak([], [])
+    assert not is_weak([], [], below=0.0) and not is_weak(strong, [down, up], below=0.0)  # 0: never
 
 
 def _robust_evaluation(folder, methods: tuple[str, ...], widen_below: float | None = None):

@@ -359,7 +359,7 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
             samples = sample_completions(out / samples_file(view_stem(name, view)), T_world_cam)
             scores = robustness(grasps, samples, completion, table=table)
             below = WIDEN_BELOW if options.widen_below is None else options.widen_below
-            if method != ENVELOPE and below > 0 and is_weak(scores, [g.lift for g in grasps], below=below):
+            if method != ENVELOPE and is_weak(scores, [g.lift for g in grasps], below=below):
                 # No grasp holds on most samples: as many again on the grasp envelope, ranked with them.
                 try:
                     envelope_rel = write_envelope(out, record)

@@ -465,7 +465,10 @@ def is_weak(
 ) -> bool:
     """Whether the most robust of the grasps ``scores`` belong to (:func:`rank_robust`, after the
     planner's ``lifts``) lifted fewer than ``below`` of its lift tests on the sample completions,
-    was never lifted on them, or there is no grasp at all: then a wider search is worth its cost."""
+    was never lifted on them, or there is no grasp at all: then a wider search is worth its cost.
+    ``below`` <= 0: never (the wider search is off)."""
+    if below <= 0:
+        return False
     if not scores:
         return True
     best = scores[rank_robust(scores, lifts)[0]]

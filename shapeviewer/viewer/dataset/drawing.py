@@ -110,9 +110,11 @@ def best_grasp_hands(
         except Exception as e:  # an unreadable grasp file: the labels still show the summary
             log.warning("grasps of %s view %d %s: %s", info.object, info.view, g.method, e)
             continue
+        if gs is None:
+            continue
         # The completion's own grasps: not those a wider search planned on the grasp envelope.
-        first = 0 if gs is None else int(gs.meta.get("wider", {}).get("first", len(gs.grasps)))
-        if gs is None or not first:
+        first = int(gs.meta.get("wider", {}).get("first", len(gs.grasps)))
+        if not first:
             continue
         # Grasp files are in a "world" frame; the evaluation records its camera pose there.
         T_world_cam = np.asarray(gs.meta.get("T_world_cam", np.eye(4)), dtype=np.float64)

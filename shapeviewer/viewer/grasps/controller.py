@@ -321,7 +321,7 @@ class GraspController:
         try:
             scores = self.jobs.compute(job, robustness, s.grasps[:first], samples, s.mesh_world, table=s.table)
             more = s.grasps[first:]
-            weak = self.widen_below > 0 and is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
+            weak = is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
             if more or (s.method != "envelope" and weak):
                 try:
                     wider = self._wider_search(job, scene, s, first, samples, more, client)
