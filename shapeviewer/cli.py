@@ -1,22 +1,10 @@
-"""The ``shapeviewer`` command: the viewer's jobs, headless.
+"""The ``shapeviewer`` command's jobs (``cmd_*``, one per subcommand) and :func:`main`, which runs one.
 
-shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR] [--data-dir DIR]
-shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
-shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
-shapeviewer objects
-shapeviewer generate --out DIR [--views N] [--backend process|ray]
-shapeviewer train --data DIR --run DIR [--steps N]
-shapeviewer average A.pt B.pt --out C.pt
-shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...] [--samples 1]
-shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
-                     [--workers N] [--backend process|ray]
-                     [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]
-                               [--robust]]
+The arguments and the usage text are in :mod:`.cli_parser`.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import os
@@ -28,14 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .backends import BACKENDS
-
-
-def _add_input_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=0, help="seed of the generated default scene")
-    p.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
-    for k in ("fx", "fy", "cx", "cy"):
-        p.add_argument(f"--{k}", type=float, default=None, help=f"depth-image intrinsics {k} (pixels)")
+from .cli_parser import build_parser
 
 
 def _intrinsics(args, shape=None):
@@ -419,252 +400,17 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="shapeviewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("-v", "--verbose", action="store_true")
-    sub = p.add_subparsers(dest="command", required=True)
-
-    s = sub.add_parser("serve", help="start the web viewer (same as python app.py)")
-    s.add_argument("--host", default="127.0.0.1", help="interface to listen on (0.0.0.0 for all)")
-    s.add_argument("--port", type=int, default=8080, help="port (the next free one is used if busy)")
-    s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
-    s.add_argument(
-        "--results",
-        default=None,
-        metavar="DIR",
-        help="results folder of `shapeviewer evaluate` for the Dataset tab (default: a small sample "
-        "store, built in the user cache on first run)",
-    )
-    s.add_argument(
-        "--allow-host",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="another name browsers reach this server by (besides localhost and --host); repeatable",
-    )
-    s.add_argument(
-        "--data-dir",
-        default=None,
-        metavar="DIR",
-        help="a folder whose capture files browsers may load (default: none; browsers can upload their own)",
-    )
-    _add_input_args(s)
-    s.set_defaults(func=cmd_serve)
-
-    s = sub.add_parser("complete", help="segment a capture and complete segments headless")
-    s.add_argument("input", help="'default' (generated scene), a .pcd/.ply cloud, or a depth image")
-    s.add_argument("--segment", default="all", help="segment id or 'all'")
-    s.add_argument("--mode", default="fast", choices=["fast", "detailed"])
-    s.add_argument("--out", required=True)
-    s.add_argument("--format", default="ply", choices=["ply", "obj", "stl", "glb"])
-    s.add_argument("--frame", default="world", choices=["world", "camera"])
-    s.add_argument(
-        "--samples",
-        type=int,
-        default=0,
-        choices=range(9),
-        metavar="N",
-        help="also write N (1-8) sample completions: their per-voxel spread in the grids .npz and "
-        "each sample's fast mesh (segment_<id>_sample_<k>)",
-    )
-    _add_input_args(s)
-    s.set_defaults(func=cmd_complete)
-
-    s = sub.add_parser("grasp", help="plan grasps on a mesh file (metres, z up) and write JSON or a pybullet zip")
-    s.add_argument("mesh")
-    s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
-    s.add_argument("--n", type=int, default=20, help="number of distinct grasps")
-    s.add_argument("--out", required=True, help="grasps.json, or a .zip for the pybullet-ready scene")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--budget", type=float, default=None, help="planning time limit in seconds")
-    s.add_argument("--no-table", action="store_true", help="plan without a table below the object")
-    s.set_defaults(func=cmd_grasp)
-
-    s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
-    s.add_argument("--json", action="store_true")
-    s.add_argument(
-        "--write-index",
-        default=None,
-        metavar="PATH",
-        help="process every mesh again and write the index (static_assets/catalogue.json ships one)",
-    )
-    s.set_defaults(func=cmd_objects)
-
-    s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
-    s.add_argument("--out", required=True)
-    s.add_argument(
-        "--views", type=int, default=None, help="views per object (default: all 726 sphere views, 32 tabletop views)"
-    )
-    s.add_argument(
-        "--scenes",
-        default="sphere",
-        choices=["sphere", "tabletop"],
-        help="sphere: the paper's floating views; tabletop: the object on a table among neighbours, "
-        "a robot's Kinect or RealSense, segmented by the app",
-    )
-    s.add_argument(
-        "--objects",
-        nargs="*",
-        default=None,
-        help="catalogue names, or generated ones it does not list (assembly/parts_000 ...); default: the catalogue",
-    )
-    s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
-    s.add_argument(
-        "--noise-scale",
-        type=float,
-        nargs=2,
-        default=(1.0, 1.0),
-        metavar=("LO", "HI"),
-        help="each view's depth error is the sensor model's times a factor drawn from LO-HI (default 1 1)",
-    )
-    s.add_argument(
-        "--depth-shift",
-        type=float,
-        default=0.0,
-        metavar="VOXELS",
-        help="move each object up to this many voxels towards the camera in its grid, so deep objects "
-        "stay inside it (default 0: the paper's placement; the shipped model uses 4)",
-    )
-    s.add_argument("--workers", type=int, default=None)
-    s.add_argument("--backend", default="process", choices=BACKENDS)
-    s.add_argument("--seed", type=int, default=0)
-    s.set_defaults(func=cmd_generate)
-
-    s = sub.add_parser("train", help="train (or resume) a completion CNN")
-    s.add_argument("--data", required=True, nargs="+", help="one or more `generate` folders, pooled")
-    s.add_argument("--run", required=True)
-    s.add_argument("--arch", default="unet3d", choices=["unet3d", "varley2017"])
-    s.add_argument("--steps", type=int, default=20000)
-    s.add_argument("--batch-size", type=int, default=32)
-    s.add_argument("--lr", type=float, default=1e-4)
-    s.add_argument("--eval-every", type=int, default=500)
-    s.add_argument("--eval-views", type=int, default=200)
-    s.add_argument(
-        "--snapshot-every",
-        type=int,
-        default=0,
-        help="keep the weights every this many steps as step_NNNNNN.pt, to average with `shapeviewer average`",
-    )
-    s.add_argument("--width", type=int, default=None)
-    s.add_argument(
-        "--in-channels",
-        type=int,
-        default=3,
-        choices=[1, 3],
-        help="unet3d inputs: 1 = occupancy (the paper), 3 = + seen free space and support plane",
-    )
-    s.add_argument(
-        "--init", default=None, help="weights to start from (a narrower unet3d, or one with fewer inputs, is widened)"
-    )
-    s.add_argument(
-        "--jaccard-weight",
-        type=float,
-        default=0.0,
-        help="add this many times (1 - soft Jaccard) per example to the summed cross-entropy "
-        "(0 = the paper's loss; it weighs thin-walled objects as much as large ones)",
-    )
-    s.add_argument(
-        "--label",
-        default="solid",
-        choices=["solid", "fraction"],
-        help="the target: solid = every voxel the object touches (the paper's Y); fraction = how much of "
-        "each voxel the object fills (voxel.solid_fraction), whose 0.5 contour lies on the surface",
-    )
-    s.add_argument("--seed", type=int, default=0)
-    s.set_defaults(func=cmd_train)
-
-    s = sub.add_parser("average", help="the parameter-wise mean of weights files of one network -> a weights file")
-    s.add_argument("weights", nargs="+", help="two or more weights files (.pt) of the same architecture")
-    s.add_argument("--out", required=True)
-    s.add_argument("--note", default=None, help="how the weights were trained (kept in the file's meta)")
-    s.set_defaults(func=cmd_average)
-
-    s = sub.add_parser("evaluate-grids", help="Jaccard at 40^3 on the three evaluation sets")
-    s.add_argument("--data", required=True, nargs="+")
-    s.add_argument("--weights", default=None)
-    s.add_argument("--views", type=int, default=500)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--json", default=None, help="also write the figures to this file")
-    s.add_argument("--card", default=None, help="write a model card (markdown) with these figures")
-    s.add_argument("--by-kind", action="store_true", help="also print the Jaccard per shape kind")
-    s.add_argument("--kinds", nargs="+", default=None, help="only views of these shape kinds (mug bowl ...)")
-    s.add_argument(
-        "--samples",
-        type=int,
-        default=8,
-        choices=range(1, 9),
-        metavar="N",
-        help="score the mean of the answers for N mirrored views (default 8: the app's output grid; "
-        "1: one answer, as the paper's network gave)",
-    )
-    s.set_defaults(func=cmd_evaluate_grids)
-
-    s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")
-    s.add_argument("--out", required=True, help="results folder (resumable: finished views are skipped)")
-    s.add_argument("--views-per-set", type=int, default=50, help="views per evaluation set (the paper: 50)")
-    s.add_argument(
-        "--views",
-        default="paper",
-        choices=["paper", "tabletop"],
-        help="paper: the paper's three view sets of floating objects; tabletop: objects on a table "
-        "among neighbours, a robot's Kinect or RealSense, segmented by the app",
-    )
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
-    s.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="processes, or with --backend ray the CPUs of a local Ray instance (default: all cores)",
-    )
-    s.add_argument(
-        "--backend",
-        default="process",
-        choices=BACKENDS,
-        help="process: local processes; ray: a Ray cluster (RAY_ADDRESS, else a local instance)",
-    )
-    s.add_argument("--no-progress", action="store_true", help="no progress bar")
-    s.add_argument(
-        "--grasps",
-        action="store_true",
-        help="also Tables IV/V: plan grasps on each completion, execute them on the true mesh "
-        "(saved completions are reused)",
-    )
-    s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
-    s.add_argument("--n-grasps", type=int, default=20, help="grasps planned per view and method (the paper: 20)")
-    s.add_argument(
-        "--grasp-budget",
-        type=float,
-        default=None,
-        help="planning time limit per view and method, seconds (default: the full, deterministic search)",
-    )
-    s.add_argument(
-        "--robust",
-        action="store_true",
-        help="with --grasps: also rank the grasps of Ours-fast, Ours-detailed and Ours-envelope by robustness "
-        "over the CNN's 8 sample completions, grasped with the palm a few mm off and lifted (Table V's "
-        "'(robust)' best grasp, the same grasps)",
-    )
-    s.add_argument(
-        "--widen-below",
-        type=float,
-        default=None,
-        metavar="SHARE",
-        help="with --robust: when the most robust grasp lifts fewer than this share of its sample tests, plan "
-        "as many again on the grasp envelope and rank them with the first (default: 0.8; 0: never)",
-    )
-    s.add_argument(
-        "--grasp-methods",
-        nargs="+",
-        default=None,
-        metavar="METHOD",
-        help="meshes to grasp, of Partial Mirror Hull Ours-fast Ours-detailed and Ours-envelope (the grasp "
-        "envelope of the CNN's sample completions; default: all six)",
-    )
-    s.set_defaults(func=cmd_evaluate)
-    return p
+COMMANDS = {
+    "serve": cmd_serve,
+    "complete": cmd_complete,
+    "grasp": cmd_grasp,
+    "objects": cmd_objects,
+    "generate": cmd_generate,
+    "train": cmd_train,
+    "average": cmd_average,
+    "evaluate-grids": cmd_evaluate_grids,
+    "evaluate": cmd_evaluate,
+}
 
 
 def _import_pybullet_quietly() -> None:
@@ -704,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if args.command in OUT_FOLDERS:
                 created = _new_folders(Path(getattr(args, OUT_FOLDERS[args.command])), OUT_FOLDERS[args.command])
-            code = args.func(args)
+            code = COMMANDS[args.command](args)
             ok = code == 0
             return code
         except KeyboardInterrupt:
