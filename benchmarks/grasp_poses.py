@@ -42,7 +42,8 @@ def resting_pose(vertices_world: np.ndarray) -> str:
 
 def view_outcome(root: Path, file: Path, method: str) -> tuple[str, float, float] | None:
     """``(group, robust pick lifted, planner's best lifted)`` of one view, None if not grasped."""
-    from shapeviewer.evaluation.run import grasp_meshes
+    from shapeviewer.evaluation.results import read_mesh
+    from shapeviewer.evaluation.run import grasp_world
 
     record = json.loads(file.read_text())
     entry = next((g for g in record.get("grasps", []) if g["method"] == method and not g["error"]), None)
@@ -51,7 +52,8 @@ def view_outcome(root: Path, file: Path, method: str) -> tuple[str, float, float
     kind = record["rows"][0].get("kind", "?")
     group = kind
     if kind in VESSELS:
-        _, truth, _, _ = grasp_meshes(root, record, method)
+        T_world_cam, _ = grasp_world(record)
+        truth = read_mesh(root / record["files"]["truth"]).apply_transform(T_world_cam)
         group = f"{kind}, {resting_pose(truth.vertices)}"
     return group, float(entry["lift_success_best_robust"]), float(entry["lift_success_best"])
 

@@ -25,15 +25,16 @@ import numpy as np
 
 def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     """One view's figures, None without a table, samples or Ours-detailed row."""
+    from shapeviewer.evaluation.records import samples_file, view_stem
     from shapeviewer.evaluation.results import read_mesh, read_points
+    from shapeviewer.evaluation.run import load_samples
     from shapeviewer.metrics import hausdorff, sampled_jaccard
     from shapeviewer.reconstruct import detailed_mesh
     from shapeviewer.revolve import fit_axis, revolve
-    from shapeviewer.voxel import GridFrame
 
     record = json.loads(file.read_text())
     shipped = next((r for r in record.get("rows", []) if r["method"] == "Ours-detailed" and not r["error"]), None)
-    samples = root / record["files"]["truth"].replace("__truth.ply", "__samples.npz")
+    samples = root / samples_file(view_stem(record["object"], record["view"]))
     if record.get("support_plane") is None or shipped is None or not samples.exists():
         return None
     plane = np.asarray(record["support_plane"], dtype=np.float64)
@@ -50,10 +51,9 @@ def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     }
     if not (axis.accepted or every):
         return out
-    saved = np.load(samples)
-    frame = GridFrame(saved["center"], float(saved["voxel_size"]))
-    mean = np.mean([revolve(s, frame, axis) for s in saved["samples"]], axis=0)
-    mesh = detailed_mesh(mean, frame, points, support_plane=plane, level=float(saved["mesh_level"]))
+    answers, frame, level = load_samples(samples)
+    mean = np.mean([revolve(a, frame, axis) for a in answers], axis=0)
+    mesh = detailed_mesh(mean, frame, points, support_plane=plane, level=level)
     truth = read_mesh(root / record["files"]["truth"])
     out["j80_revolved"] = sampled_jaccard(mesh, truth)
     out["mm_revolved"] = hausdorff(mesh, truth)["mean_mm"]
