@@ -3,8 +3,9 @@
 For each tabletop view of an evaluation folder: the vertical axis fitted to the observed points
 (:func:`shapeviewer.revolve.fit_axis`), whether it is accepted as a surface of revolution, and, for the
 accepted views (every view with ``--all``), Algorithm 1's mesh of the mean of the revolved sample
-completions (:func:`shapeviewer.revolve.revolve` on each saved sample) scored against the true mesh
-beside the folder's own Ours-detailed scores.
+completions (:func:`shapeviewer.revolve.revolve` on the saved samples, the seen free space left
+empty: what ``complete_points(..., revolve_answers=True)`` gives) scored against the true mesh beside
+the folder's own Ours-detailed scores (the folder evaluated without revolving, the default).
 
     shapeviewer evaluate --out results/table7 --views tabletop --views-per-set 50 --seed 7
     python benchmarks/revolve.py results/table7 [--all] [--kinds bowl cup]
@@ -31,6 +32,7 @@ def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     from shapeviewer.metrics import hausdorff, sampled_jaccard
     from shapeviewer.reconstruct import detailed_mesh
     from shapeviewer.revolve import fit_axis, revolve
+    from shapeviewer.voxel import context_grids
 
     record = json.loads(file.read_text())
     shipped = next((r for r in record.get("rows", []) if r["method"] == "Ours-detailed" and not r["error"]), None)
@@ -52,7 +54,8 @@ def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     if not (axis.accepted or every):
         return out
     answers, frame, level = load_samples(samples)
-    mean = np.mean([revolve(a, frame, axis) for a in answers], axis=0)
+    free = context_grids(points, frame, support_plane=plane)[0]
+    mean = revolve(answers, frame, axis, free=free).mean(axis=0)
     mesh = detailed_mesh(mean, frame, points, support_plane=plane, level=level)
     truth = read_mesh(root / record["files"]["truth"])
     out["j80_revolved"] = sampled_jaccard(mesh, truth)

@@ -136,7 +136,12 @@ def cmd_complete(args) -> int:
             entry["error"] = str(exc)
         report["segments"].append(entry)
     completions = complete_points(
-        [s.points_cam for s in usable], completer, [s.id for s in usable], support_plane=seg.plane_cam
+        [s.points_cam for s in usable],
+        completer,
+        [s.id for s in usable],
+        support_plane=seg.plane_cam,
+        revolve_answers=args.revolve,
+        fit_boxes=args.boxes,
     )
     by_id = {e["id"]: e for e in report["segments"]}
     for s, c in zip(usable, completions):
@@ -147,8 +152,22 @@ def cmd_complete(args) -> int:
                 "timings": c.timings,
                 "input_voxels": int(c.grid_in.sum()),
                 "output_voxels": int(c.grid_out.sum()),
+                "revolved": c.revolved,
+                "boxed": c.boxed,
             }
         )
+        if c.cuboid is not None:
+            e["box"] = {
+                "extents_m": c.cuboid.extents.tolist(),
+                "residual_m": c.cuboid.residual,
+                "fill": c.cuboid.fill,
+            }
+        if c.axis is not None:
+            e["revolution_axis"] = {
+                "residual_m": c.axis.residual,
+                "radius_m": c.axis.radius,
+                "coverage_deg": c.axis.coverage_deg,
+            }
         (out / f"segment_{s.id}_points.ply").write_bytes(
             export.points_ply_bytes(s.points_cam, frame=args.frame, T_world_cam=T_world_cam)
         )

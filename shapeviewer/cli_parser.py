@@ -77,6 +77,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write N (1-8) sample completions: their per-voxel spread in the grids .npz and "
         "each sample's fast mesh (segment_<id>_sample_<k>)",
     )
+    s.add_argument(
+        "--revolve",
+        action="store_true",
+        help="revolve the network's answers about the table's normal for segments that look like a "
+        "surface of revolution about it (bowls, cups, cans): closes an upside-down bowl's far side",
+    )
+    s.add_argument(
+        "--boxes",
+        action="store_true",
+        help="complete segments on the table whose points are a box's as the box fitted to them",
+    )
     _add_input_args(s)
 
     s = sub.add_parser("grasp", help="plan grasps on a mesh file (metres, z up) and write JSON or a pybullet zip")

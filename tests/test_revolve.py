@@ -90,3 +90,9 @@ def test_revolving_closes_the_far_half_of_a_ring():
     assert (out[far_wall] > 0.5).mean() > 0.9  # the far half of the wall is now there
     assert (out[~wall & (radius < 0.025)] > 0.5).mean() < 0.01  # and the inside stays empty
     assert np.all(out >= answer.reshape(-1))  # nothing the network completed is taken away
+    # Space the camera saw through stays empty; several answers are revolved one by one.
+    free = (far_wall & (world[:, 0] > AXIS_WORLD[0])).reshape(40, 40, 40)
+    both = revolve(np.stack([answer, answer]), frame, axis, free=free)
+    assert both.shape == (2, 40, 40, 40) and np.array_equal(both[0], both[1])
+    assert np.array_equal(both[0][free], answer[free]) and free.any()
+    assert np.array_equal(both[0][~free], out.reshape(40, 40, 40)[~free])

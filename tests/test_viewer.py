@@ -331,6 +331,26 @@ def test_confidence_layer_shades_the_output_by_the_samples_spread(app):
     assert node(app, "/confidence").visible is False
 
 
+def test_revolve_on_table_fits_an_axis_and_says_so(app):
+    """With "Revolve on table" ticked, a completion carries the fitted axis, and the Confidence layer
+    says whether its answers were revolved; unticked, none is fitted."""
+    sid = completed_segment(app)
+    assert app.completions[sid].axis is None  # off by default
+    app.panel.revolve.value = True
+    box = app.panel.layers["confidence"]
+    try:
+        c = app.complete(sid)
+        assert c is not None and c.axis is not None and c.timings["priors"] > 0
+        box.value = True
+        text = app.panel.timings.content
+        assert "Surface of revolution" in text
+        assert ("revolved about the table's normal" in text) == c.revolved
+    finally:
+        box.value = False
+        app.panel.revolve.value = False
+    assert app.complete(sid).axis is None
+
+
 def test_sample_slider_steps_through_the_sample_completions(app):
     """Sample k is the marching cubes of the k-th sample completion, drawn in the Confidence layer
     beside the completion (which stays as it was); 0 removes it."""

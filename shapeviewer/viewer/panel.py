@@ -10,9 +10,11 @@ from dataclasses import dataclass
 
 import viser
 
+from ..cuboid import Cuboid
 from ..export import MESH_FORMATS
 from ..model import SYMMETRIES
 from ..pipeline import GUESS_SPREAD, Completion
+from ..revolve import RevolutionAxis
 from .state import MESH_KINDS, MESH_TITLES
 
 NO_SEGMENT = "(none)"
@@ -102,6 +104,8 @@ class Panel:
     segment: viser.GuiDropdownHandle
     complete: viser.GuiButtonHandle
     complete_all: viser.GuiButtonHandle
+    revolve: viser.GuiCheckboxHandle
+    fit_boxes: viser.GuiCheckboxHandle
     detailed: viser.GuiButtonHandle
     partial: viser.GuiButtonHandle
     mirror: viser.GuiButtonHandle
@@ -150,6 +154,18 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         complete = gui.add_button("Complete segment", icon=viser.Icon.CUBE, hint="Fast-complete the selected segment")
         complete_all = gui.add_button(
             "Complete all", icon=viser.Icon.BOX_MULTIPLE, hint="Fast-complete every segment in one batched CNN pass"
+        )
+        revolve = gui.add_checkbox(
+            "Revolve on table",
+            False,
+            hint="Revolve the network's answers about the table's normal where the segment looks like a surface "
+            "of revolution (bowls, cups, cans): closes an upside-down bowl's far side, fattens cans and fruit",
+        )
+        fit_boxes = gui.add_checkbox(
+            "Fit boxes on table",
+            False,
+            hint="Complete a segment whose points fill a rectangle on the table and lie on a box's faces as that "
+            "box (the network's boxes are about 10 mm too large)",
         )
         detailed = gui.add_button(
             "Detailed mesh",
@@ -233,6 +249,8 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         segment,
         complete,
         complete_all,
+        revolve,
+        fit_boxes,
         detailed,
         partial,
         mirror,
@@ -303,11 +321,12 @@ def timings_markdown(title: str, rows: list[tuple[str, float]]) -> str:
 def completion_timings(done: list[Completion], seg_seconds: float, send: float) -> dict[str, float]:
     """Seconds per stage of a batch of fast completions (totals over ``done``), with the scene's
     segmentation and the time to send the results to the browser."""
-    total = {k: sum(c.timings.get(k, 0.0) for c in done) for k in ("voxelize", "cnn", "fast_mesh")}
+    total = {k: sum(c.timings.get(k, 0.0) for c in done) for k in ("voxelize", "cnn", "priors", "fast_mesh")}
     return {
         "segmentation": seg_seconds,
         "voxelize": total["voxelize"],
         "cnn": total["cnn"],
+        "priors": total["priors"],
         "marching_cubes": total["fast_mesh"],
         "send": send,
         "click_to_mesh": sum(total.values()) + send,
@@ -320,6 +339,7 @@ def completion_timings_markdown(title: str, timings: dict[str, float]) -> str:
         ("segmentation (scene)", timings["segmentation"]),
         ("voxelize", timings["voxelize"]),
         ("CNN", timings["cnn"]),
+        ("box fit, axis fit and revolve", timings["priors"]),
         ("marching cubes", timings["marching_cubes"]),
         ("send to browser", timings["send"]),
         ("**click → mesh**", timings["click_to_mesh"]),
@@ -341,11 +361,33 @@ def mesh_timings_markdown(kind: str, c: Completion, send: float) -> str:
     return timings_markdown(title, rows)
 
 
-def confidence_markdown(segment_id: int, spread_by_side: list[tuple[str, float]], guessed: float) -> str:
+def confidence_markdown(
+    segment_id: int,
+    spread_by_side: list[tuple[str, float]],
+    guessed: float,
+    axis: RevolutionAxis | None = None,
+    cuboid: Cuboid | None = None,
+) -> str:
     """The confidence of a completion: mean sample spread on each side (seen, unseen) and the share
-    of completed voxels that are a guess (see :func:`~shapeviewer.pipeline.confidence_figures`)."""
-    return (
+    of completed voxels that are a guess (see :func:`~shapeviewer.pipeline.confidence_figures`),
+    whether it is the box fitted to the points (``cuboid``, :mod:`shapeviewer.cuboid`) and whether its
+    answers were revolved about the table's normal (``axis``, :mod:`shapeviewer.revolve`)."""
+    text = (
         f"Segment **{segment_id}**: confidence of the completion  \n"
         + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)
         + f"  \n{100 * guessed:.0f}% of the completed voxels are a guess (spread > {GUESS_SPREAD})"
     )
+    if cuboid is not None:
+        verdict = "completed as the fitted box" if cuboid.accepted else "not a box"
+        size = " × ".join(f"{e * 1000:.0f}" for e in cuboid.extents)
+        text += (
+            f"  \nBox: **{verdict}** ({size} mm; 90% of the points within {cuboid.residual * 1000:.1f} mm of its"
+            f" faces, their outline filling {100 * cuboid.fill:.0f}% of its footprint)"
+        )
+    if axis is not None:
+        verdict = "revolved about the table's normal" if axis.accepted else "not revolved"
+        text += (
+            f"  \nSurface of revolution: **{verdict}** (points within {axis.residual * 1000:.1f} mm of one radius"
+            f" of {axis.radius * 1000:.0f} mm per height, seen over {axis.coverage_deg:.0f}° about the axis)"
+        )
+    return text

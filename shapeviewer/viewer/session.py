@@ -448,6 +448,8 @@ class Session:
                 self.res.completer,
                 [sid for sid, _ in usable],
                 support_plane=scene.segmentation.plane_cam,
+                revolve_answers=self.panel.revolve.value,
+                fit_boxes=self.panel.fit_boxes.value,
             )
             t0 = time.perf_counter()
             for c in done:
@@ -524,7 +526,7 @@ class Session:
         assert self.scene is not None  # ``c`` is a completion of it
         self.drawing.draw_confidence(self.scene, c, spread)
         self.panel.timings.content = P.confidence_markdown(
-            c.segment_id, *confidence_figures(c.grid_in, c.solid, spread)
+            c.segment_id, *confidence_figures(c.grid_in, c.solid, spread), c.axis, c.cuboid
         )
 
     def show_sample(self, k: int, client: viser.ClientHandle | None = None) -> trimesh.Trimesh | None:
