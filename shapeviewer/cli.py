@@ -161,6 +161,7 @@ def cmd_complete(args) -> int:
                 "extents_m": c.cuboid.extents.tolist(),
                 "residual_m": c.cuboid.residual,
                 "fill": c.cuboid.fill,
+                "aligned": c.cuboid.aligned,
             }
         if c.axis is not None:
             e["revolution_axis"] = {

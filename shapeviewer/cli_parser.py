@@ -84,9 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
         "surface of revolution about it (bowls, cups, cans): closes an upside-down bowl's far side",
     )
     s.add_argument(
-        "--boxes",
-        action="store_true",
-        help="complete segments on the table whose points are a box's as the box fitted to them",
+        "--no-boxes",
+        dest="boxes",
+        action="store_false",
+        help="complete every segment as the network answers it, also those on the table whose points are a "
+        "box's (by default completed as the box fitted to them)",
     )
     _add_input_args(s)
 

@@ -15,12 +15,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .segment import table_frame
 from .voxel import GridFrame, unit_plane
 
-EXTENT_PERCENTILE = 0.5  # the box spans the points' 0.5th to 99.5th percentile along each edge
+EXTENT_PERCENTILE = 0.5  # the box spans the points' 0.5th to 99.5th percentile along each edge,
+HEIGHT_PERCENTILE = 98.0  # and from the table up to this percentile of their height,
+# widened on the table by the rim of each face a depth camera loses at the silhouette (flying and
+# missing pixels there): the points of YCB boxes on the tabletop views stop 2-3 mm short of each edge.
+SILHOUETTE_MARGIN = 0.0025  # metres
 FIT_POINTS = 2000  # the yaw is searched on a seeded subsample of this many points
 # A box's footprint is the rectangle its points fill; a can's or a bowl's disc fills pi / 4 of
 # its bounding square, a banana's arc or a drill far less.
@@ -29,6 +33,11 @@ MIN_FILL = 0.9
 # rectangle too, has its curved side up to 0.29 of its radius off the faces.
 MAX_RESIDUAL = 0.004  # metres, the 90th percentile of the points' distance to the box's surface
 MIN_EXTENT = 0.01  # metres: thinner than this is a sheet, not a box
+NORMAL_NEIGHBOURS = 30  # points a surface normal is fitted to
+ALIGNED_DEG = 15.0  # a normal this close to one of the box's edges is on one of its faces
+# A box's points have their normals along its edges but at its rounded edges and where depth noise
+# tilts them (0.84-0.92 of them on the tabletop views' boxes); a bottle's, jar's or plate's at most 0.8.
+MIN_ALIGNED = 0.8
 
 
 @dataclass(frozen=True)
@@ -41,8 +50,11 @@ class Cuboid:
         centre: (2,) the footprint's centre, x, y in the table frame, metres.
         yaw: the angle of the box's first edge from the table frame's x axis, radians.
         extents: (3,) the edge lengths, metres: along ``yaw``, across it, and the height above the table.
-        residual: the 90th percentile of the observed points' distance to the box's surface, metres.
+        residual: the 90th percentile of the observed points' distance to the surface of the box they
+            span (before :data:`SILHOUETTE_MARGIN` widens it), metres.
         fill: the share of the footprint rectangle the points' convex hull on the table covers.
+        aligned: the share of the points whose surface normal lies within :data:`ALIGNED_DEG` of one
+            of the box's edges (on one of its faces).
     """
 
     T_table_cam: np.ndarray
@@ -51,11 +63,18 @@ class Cuboid:
     extents: np.ndarray
     residual: float
     fill: float
+    aligned: float
 
     @property
     def accepted(self) -> bool:
-        """Whether the points look like a box: they fill its footprint and lie on its faces."""
-        return self.fill >= MIN_FILL and self.residual <= MAX_RESIDUAL and bool(np.all(self.extents >= MIN_EXTENT))
+        """Whether the points look like a box: they fill its footprint, lie on its faces and face along
+        its edges."""
+        return (
+            self.fill >= MIN_FILL
+            and self.residual <= MAX_RESIDUAL
+            and self.aligned >= MIN_ALIGNED
+            and bool(np.all(self.extents >= MIN_EXTENT))
+        )
 
     def to_box(self, points_cam: np.ndarray) -> np.ndarray:
         """(N, 3) camera-frame points (metres) in the box's own frame: origin at its centre, axes along
@@ -103,7 +122,7 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
 
     The yaw is that of the smallest rectangle on the table holding the points' 0.5th-99.5th
     percentiles along its edges; the box spans those percentiles and reaches from the table up to the
-    points' 99.5th percentile of height.
+    points' 98th percentile of height; on the table it is widened by :data:`SILHOUETTE_MARGIN` each side.
     """
     n, d = unit_plane(support_plane)
     T = table_frame(np.r_[n, d])
@@ -120,18 +139,31 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
     a, b = table[:, :2] @ [c, s], table[:, :2] @ [-s, c]
     lo, hi = EXTENT_PERCENTILE, 100 - EXTENT_PERCENTILE
     (a0, a1), (b0, b1) = np.percentile(a, [lo, hi]), np.percentile(b, [lo, hi])
-    height = float(np.percentile(table[:, 2], hi))
+    height = float(np.percentile(table[:, 2], HEIGHT_PERCENTILE))
     centre = np.array([c * (a0 + a1) / 2 - s * (b0 + b1) / 2, s * (a0 + a1) / 2 + c * (b0 + b1) / 2])
-    extents = np.array([a1 - a0, b1 - b0, max(height, 0.0)])
     inside = (a >= a0) & (a <= a1) & (b >= b0) & (b <= b1)
     try:
         hull_area = ConvexHull(np.column_stack([a[inside], b[inside]])).volume if inside.sum() >= 3 else 0.0
     except QhullError:  # the points are collinear on the table
         hull_area = 0.0
-    fill = float(hull_area / max(extents[0] * extents[1], 1e-12))
-    box = Cuboid(T, centre, yaw, extents, 0.0, fill)
-    residual = float(np.percentile(np.abs(box.signed_distance(pts)), 90))
-    return Cuboid(T, centre, yaw, extents, residual, fill)
+    fill = float(hull_area / max((a1 - a0) * (b1 - b0), 1e-12))
+    spanned = np.array([a1 - a0, b1 - b0, max(height, 0.0)])
+    residual = float(np.percentile(np.abs(Cuboid(T, centre, yaw, spanned, 0.0, fill, 0.0).signed_distance(pts)), 90))
+    extents = spanned + [2 * SILHOUETTE_MARGIN, 2 * SILHOUETTE_MARGIN, 0.0]
+    edges = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # the box's edges in the table frame
+    cosines = np.abs(_normals(sub) @ edges.T).max(axis=1)
+    aligned = float((cosines >= np.cos(np.deg2rad(ALIGNED_DEG))).mean())
+    return Cuboid(T, centre, yaw, extents, residual, fill, aligned)
+
+
+def _normals(points: np.ndarray) -> np.ndarray:
+    """(N, 3) unit surface normals (unsigned) of (N, 3) points: the least principal direction of
+    each point's :data:`NORMAL_NEIGHBOURS` nearest points."""
+    k = min(NORMAL_NEIGHBOURS, len(points))
+    _, nearest = cKDTree(points).query(points, k=k)
+    local = points[nearest] - points[nearest].mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    return vectors[:, :, 0]
 
 
 def occupancy(cuboid: Cuboid, frame: GridFrame) -> np.ndarray:

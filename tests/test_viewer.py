@@ -351,6 +351,26 @@ def test_revolve_on_table_fits_an_axis_and_says_so(app):
     assert app.complete(sid).axis is None
 
 
+def test_fit_boxes_on_table_fits_a_box_and_says_so(app):
+    """With "Fit boxes on table" ticked (the default), a completion carries the box fitted to its
+    segment, and the Confidence layer says whether it was completed as that box; unticked, none is
+    fitted."""
+    sid = completed_segment(app)
+    assert app.panel.fit_boxes.value and app.completions[sid].cuboid is not None  # on by default
+    layer = app.panel.layers["confidence"]
+    try:
+        c = app.complete(sid)
+        assert c is not None and c.cuboid is not None
+        layer.value = True
+        text = app.panel.timings.content
+        assert "Box:" in text and ("completed as the fitted box" in text) == c.boxed
+        app.panel.fit_boxes.value = False
+        assert app.complete(sid).cuboid is None
+    finally:
+        layer.value = False
+        app.panel.fit_boxes.value = True
+
+
 def test_sample_slider_steps_through_the_sample_completions(app):
     """Sample k is the marching cubes of the k-th sample completion, drawn in the Confidence layer
     beside the completion (which stays as it was); 0 removes it."""

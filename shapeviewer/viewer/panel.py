@@ -163,9 +163,9 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         )
         fit_boxes = gui.add_checkbox(
             "Fit boxes on table",
-            False,
+            True,
             hint="Complete a segment whose points fill a rectangle on the table and lie on a box's faces as that "
-            "box (the network's boxes are about 10 mm too large)",
+            "box (the network's boxes are about 10 mm too large); untick for the network's own answer",
         )
         detailed = gui.add_button(
             "Detailed mesh",

@@ -81,7 +81,9 @@ def wire_callbacks(app: Session) -> None:
     @p.layers["confidence"].on_update
     def _(_event: viser.GuiEvent) -> None:
         if p.layers["confidence"].value:
-            for c in list(app.completions.values()):
+            # Every completion's layer; the selected segment's figures last, so the panel shows them.
+            done = sorted(app.completions.values(), key=lambda c: c.segment_id == app.selected)
+            for c in done:
                 app.show_confidence(c)
 
     @p.sample.on_update
