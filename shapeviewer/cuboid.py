@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import ConvexHull, QhullError
 
 from .segment import table_frame
 from .voxel import GridFrame, unit_plane
@@ -25,7 +25,8 @@ HEIGHT_PERCENTILE = 98.0  # and from the table up to this percentile of their he
 # widened on the table by the rim of each face a depth camera loses at the silhouette (flying and
 # missing pixels there): the points of YCB boxes on the tabletop views stop 2-3 mm short of each edge.
 SILHOUETTE_MARGIN = 0.0025  # metres
-FIT_POINTS = 2000  # the yaw is searched on a seeded subsample of this many points
+FIT_POINTS = 2000  # the normals are fitted on a seeded subsample of this many points,
+YAW_POINTS = 500  # and the yaw coarsely on this many of them
 # A box's footprint is the rectangle its points fill; a can's or a bowl's disc fills pi / 4 of
 # its bounding square, a banana's arc or a drill far less.
 MIN_FILL = 0.9
@@ -94,10 +95,11 @@ class Cuboid:
 
 def _footprint(uv: np.ndarray) -> tuple[float, float]:
     """``(yaw, area)``: the direction and area of the smallest rectangle holding the points' central
-    percentiles, ``uv`` (N, 2) table-frame metres; yaw searched every degree, then every 0.05 degree."""
+    percentiles, ``uv`` (N, 2) table-frame metres, in no order; yaw searched every degree on the
+    first :data:`YAW_POINTS` of them, then every 0.1 degree on all."""
     lo, hi = EXTENT_PERCENTILE, 100 - EXTENT_PERCENTILE
 
-    def areas(yaws: np.ndarray) -> np.ndarray:
+    def areas(uv: np.ndarray, yaws: np.ndarray) -> np.ndarray:
         c, s = np.cos(yaws), np.sin(yaws)
         a = uv @ np.stack([c, s])  # (N, Y) along each yaw
         b = uv @ np.stack([-s, c])
@@ -105,9 +107,9 @@ def _footprint(uv: np.ndarray) -> tuple[float, float]:
         return span(a) * span(b)
 
     coarse = np.deg2rad(np.arange(0.0, 90.0, 1.0))
-    best = coarse[int(np.argmin(areas(coarse)))]
-    fine = best + np.deg2rad(np.arange(-1.0, 1.0001, 0.05))
-    a = areas(fine)
+    best = coarse[int(np.argmin(areas(uv[:YAW_POINTS], coarse)))]
+    fine = best + np.deg2rad(np.arange(-1.0, 1.0001, 0.1))
+    a = areas(uv, fine)
     k = int(np.argmin(a))
     return float(fine[k] % (np.pi / 2)), float(a[k])
 
@@ -118,7 +120,8 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
     Args:
         points_cam: (N, 3) the segment's observed points, camera frame, metres.
         support_plane: ``(a, b, c, d)`` of the table in the camera frame (normal towards the camera).
-        seed: picks the subsample of :data:`FIT_POINTS` points the yaw is searched on.
+        seed: picks the subsamples the normals (:data:`FIT_POINTS`) and the yaw (:data:`YAW_POINTS`)
+            are fitted on.
 
     The yaw is that of the smallest rectangle on the table holding the points' 0.5th-99.5th
     percentiles along its edges; the box spans those percentiles and reaches from the table up to the
@@ -131,9 +134,7 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
     if len(pts) < 10:
         raise ValueError(f"{len(pts)} points are too few to fit a box")
     table = pts @ T[:3, :3].T + T[:3, 3]
-    sub = table
-    if len(table) > FIT_POINTS:
-        sub = table[np.random.default_rng(seed).choice(len(table), FIT_POINTS, replace=False)]
+    sub = table[np.random.default_rng(seed).permutation(len(table))[:FIT_POINTS]]  # in no order
     yaw, _ = _footprint(sub[:, :2])
     c, s = np.cos(yaw), np.sin(yaw)
     a, b = table[:, :2] @ [c, s], table[:, :2] @ [-s, c]
@@ -157,13 +158,13 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
 
 
 def _normals(points: np.ndarray) -> np.ndarray:
-    """(N, 3) unit surface normals (unsigned) of (N, 3) points: the least principal direction of
-    each point's :data:`NORMAL_NEIGHBOURS` nearest points."""
-    k = min(NORMAL_NEIGHBOURS, len(points))
-    _, nearest = cKDTree(points).query(points, k=k)
-    local = points[nearest] - points[nearest].mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
-    return vectors[:, :, 0]
+    """(N, 3) unit surface normals (unsigned) of (N, 3) points, each fitted to its
+    :data:`NORMAL_NEIGHBOURS` nearest points."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_NEIGHBOURS))
+    return np.asarray(cloud.normals)
 
 
 def occupancy(cuboid: Cuboid, frame: GridFrame) -> np.ndarray:
