@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .segment import table_frame
-from .voxel import GridFrame, unit_plane
+from .segment import points_on_table
+from .voxel import GridFrame
 
 EXTENT_PERCENTILE = 0.5  # the box spans the points' 0.5th to 99.5th percentile along each edge,
 HEIGHT_PERCENTILE = 98.0  # and from the table up to this percentile of their height,
@@ -127,13 +127,7 @@ def fit_cuboid(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int =
     percentiles along its edges; the box spans those percentiles and reaches from the table up to the
     points' 98th percentile of height; on the table it is widened by :data:`SILHOUETTE_MARGIN` each side.
     """
-    n, d = unit_plane(support_plane)
-    T = table_frame(np.r_[n, d])
-    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) < 10:
-        raise ValueError(f"{len(pts)} points are too few to fit a box")
-    table = pts @ T[:3, :3].T + T[:3, 3]
+    T, pts, table = points_on_table(points_cam, support_plane, fitting="a box")
     sub = table[np.random.default_rng(seed).permutation(len(table))[:FIT_POINTS]]  # in no order
     yaw, _ = _footprint(sub[:, :2])
     c, s = np.cos(yaw), np.sin(yaw)

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .segment import table_frame
-from .voxel import GridFrame, unit_plane
+from .segment import points_on_table
+from .voxel import GridFrame
 
 BIN_HEIGHT = 0.005  # metres: the observed points' radius is compared within height bins this tall
 N_ANGLES = 36  # angles about the axis the answer is read at
@@ -88,15 +88,10 @@ def fit_axis(points_cam: np.ndarray, support_plane: np.ndarray, *, seed: int = 0
     A coarse-to-fine grid search over the axis's position on the table plane, from the points'
     centroid out to 1.4 times their extent.
     """
-    n, d = unit_plane(support_plane)
-    T = table_frame(np.r_[n, d])
-    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) < 10:
-        raise ValueError(f"{len(pts)} points are too few to fit an axis")
+    T, pts, table = points_on_table(points_cam, support_plane, fitting="an axis")
     if len(pts) > FIT_POINTS:
-        pts = pts[np.random.default_rng(seed).choice(len(pts), FIT_POINTS, replace=False)]
-    table = pts @ T[:3, :3].T + T[:3, 3]
+        keep = np.random.default_rng(seed).choice(len(pts), FIT_POINTS, replace=False)
+        pts, table = pts[keep], table[keep]
     x, y = table[:, 0].astype(np.float32), table[:, 1].astype(np.float32)
     _, bins = np.unique(np.floor(table[:, 2] / BIN_HEIGHT).astype(np.int64), return_inverse=True)
     onehot = np.zeros((len(pts), bins.max() + 1), np.float32)

@@ -359,6 +359,28 @@ def table_frame(plane_cam: np.ndarray) -> np.ndarray:
     return T
 
 
+def points_on_table(
+    points_cam: np.ndarray, support_plane: np.ndarray, *, fitting: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(T_table_cam, points_cam, points_table)``: the finite rows of (N, 3) camera-frame points
+    (metres), and the same points in the table frame of ``support_plane`` (``(a, b, c, d)``, camera
+    frame; :func:`table_frame`: the table at z = 0, z up, metres).
+
+    Raises:
+        ValueError: fewer than 10 finite points, too few for ``fitting`` (named in the message), or a
+            malformed plane.
+    """
+    from .voxel import unit_plane
+
+    n, d = unit_plane(support_plane)
+    T = table_frame(np.r_[n, d])
+    pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < 10:
+        raise ValueError(f"{len(pts)} points are too few to fit {fitting}")
+    return T, pts, pts @ T[:3, :3].T + T[:3, 3]
+
+
 def _check_parameters(**positive: float) -> None:
     for name, value in positive.items():
         if not (np.isfinite(value) and value > 0):

@@ -289,3 +289,27 @@ def dropdown_options(page, dropdown: str) -> list[str]:
 
 def checked(page, label: str) -> bool:
     return page.get_by_role("checkbox", name=label, exact=True).filter(visible=True).first.is_checked()
+
+
+def table_camera() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(R_cam_world, t_cam_world, plane_cam)``: a camera 0.6 m out and 0.5 m up looking at the
+    table's origin (optical frame: z forward, y down), and the table z = 0 in its frame."""
+    eye = np.array([0.0, -0.6, 0.5])
+    forward = -eye / np.linalg.norm(eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward])  # rows: the camera's axes in world coordinates
+    t = -R @ eye
+    normal = R @ np.array([0.0, 0.0, 1.0])
+    return R, t, np.r_[normal, -normal @ t]
+
+
+def seen_by(
+    points_world: np.ndarray, normals_world: np.ndarray, R: np.ndarray, t: np.ndarray, *, noise: float = 0.0
+) -> np.ndarray:
+    """The points facing the camera ``(R, t)`` (:func:`table_camera`), in its frame (metres), with
+    seeded Gaussian depth noise of ``noise`` metres."""
+    facing = np.einsum("ij,ij->i", normals_world, -R.T @ t - points_world) > 0
+    cam = points_world[facing] @ R.T + t
+    return cam + np.random.default_rng(2).normal(0.0, noise, cam.shape) if noise else cam

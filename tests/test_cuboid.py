@@ -8,29 +8,11 @@ import pytest
 from shapeviewer.cuboid import SILHOUETTE_MARGIN, fit_cuboid, occupancy
 from shapeviewer.voxel import GridFrame
 
+from helpers import seen_by, table_camera
+
 YAW = np.deg2rad(25.0)  # of the box on the table, from the world's x axis
 SIZE = np.array([0.12, 0.07, 0.09])  # metres: length, width, height
 CENTRE = np.array([0.02, -0.01])  # its footprint's centre on the table (world x, y)
-
-
-def _camera():
-    """``(R_cam_world, t_cam_world, plane_cam)``: a camera 0.6 m out and 0.5 m up looking at the
-    table's origin (optical frame), and the table z = 0 in its frame."""
-    eye = np.array([0.0, -0.6, 0.5])
-    forward = -eye / np.linalg.norm(eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    R = np.stack([right, np.cross(forward, right), forward])
-    t = -R @ eye
-    normal = R @ np.array([0.0, 0.0, 1.0])
-    return R, t, np.r_[normal, -normal @ t]
-
-
-def _seen(points_world, normals_world, R, t, noise=0.0005):
-    """The points facing the camera, in its frame, with depth noise (metres)."""
-    facing = np.einsum("ij,ij->i", normals_world, -R.T @ t - points_world) > 0
-    cam = points_world[facing] @ R.T + t
-    return cam + np.random.default_rng(2).normal(0, noise, cam.shape)
 
 
 def _box(n=3000):
@@ -65,8 +47,8 @@ def _cylinder(radius, length, lying, n=6000):
 
 
 def test_a_box_is_fitted_to_the_faces_the_camera_sees():
-    R, t, plane = _camera()
-    box = fit_cuboid(_seen(*_box(), R, t), plane)
+    R, t, plane = table_camera()
+    box = fit_cuboid(seen_by(*_box(), R, t, noise=0.0005), plane)
     assert box.accepted and box.fill > 0.95 and box.aligned > 0.85 and box.residual < 0.002
     # Its edges are the box's: the longer one first or second, either way round.
     sizes = np.sort(box.extents[:2] - 2 * SILHOUETTE_MARGIN)
@@ -84,15 +66,15 @@ def test_a_box_is_fitted_to_the_faces_the_camera_sees():
 def test_a_can_is_not_a_box(lying):
     """A standing can's points fill a disc, not a rectangle; a lying can's do fill one, but its side
     is curved: neither is completed as a box."""
-    R, t, plane = _camera()
-    box = fit_cuboid(_seen(*_cylinder(0.035, 0.12, lying), R, t), plane)
+    R, t, plane = table_camera()
+    box = fit_cuboid(seen_by(*_cylinder(0.035, 0.12, lying), R, t, noise=0.0005), plane)
     assert not box.accepted
     assert (box.fill < 0.9) if not lying else (box.aligned < 0.8 and box.residual > 0.004)
 
 
 def test_the_boxes_occupancy_is_one_inside_and_zero_outside_with_its_surface_at_one_half():
-    R, t, plane = _camera()
-    box = fit_cuboid(_seen(*_box(), R, t), plane)
+    R, t, plane = table_camera()
+    box = fit_cuboid(seen_by(*_box(), R, t, noise=0.0005), plane)
     frame = GridFrame(R @ np.r_[CENTRE, SIZE[2] / 2] + t, 0.005)
     p = occupancy(box, frame).reshape(-1)
     index = np.indices((40, 40, 40)).reshape(3, -1).T
@@ -103,7 +85,7 @@ def test_the_boxes_occupancy_is_one_inside_and_zero_outside_with_its_surface_at_
 
 
 def test_too_few_points_are_an_error_not_a_box():
-    _, _, plane = _camera()
+    _, _, plane = table_camera()
     with pytest.raises(ValueError, match="too few"):
         fit_cuboid(np.zeros((5, 3)), plane)
 

@@ -7,28 +7,9 @@ import numpy as np
 from shapeviewer.revolve import fit_axis, revolve
 from shapeviewer.voxel import GridFrame
 
+from helpers import seen_by, table_camera
+
 AXIS_WORLD = np.array([0.03, -0.02])  # where the object stands on the table (world x, y, metres)
-
-
-def _camera():
-    """``(R_cam_world, t_cam_world, plane_cam)``: a camera 0.6 m out and 0.5 m up looking at the
-    table's origin (optical frame: z forward, y down), and the table z = 0 in its frame."""
-    eye = np.array([0.0, -0.6, 0.5])
-    forward = -eye / np.linalg.norm(eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    R = np.stack([right, down, forward])  # rows: the camera's axes in world coordinates
-    t = -R @ eye
-    normal = R @ np.array([0.0, 0.0, 1.0])
-    return R, t, np.r_[normal, -normal @ t]
-
-
-def _seen(points_world: np.ndarray, normals_world: np.ndarray, R, t) -> np.ndarray:
-    """The points facing the camera, in its frame."""
-    eye = -R.T @ t
-    facing = np.einsum("ij,ij->i", normals_world, eye - points_world) > 0
-    return points_world[facing] @ R.T + t
 
 
 def _cylinder(radius: float, height: float, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
@@ -44,9 +25,9 @@ def _cylinder(radius: float, height: float, n: int = 4000) -> tuple[np.ndarray, 
 
 
 def test_a_cans_axis_is_found_from_its_visible_half():
-    R, t, plane = _camera()
+    R, t, plane = table_camera()
     pts, normals = _cylinder(0.04, 0.12)
-    axis = fit_axis(_seen(pts, normals, R, t), plane)
+    axis = fit_axis(seen_by(pts, normals, R, t), plane)
     world_cam = np.linalg.inv(axis.T_table_cam)
     # The table frame's axis through ``centre``, back in the world: the can's own axis.
     foot_cam = world_cam[:3, :3] @ np.r_[axis.centre, 0.0] + world_cam[:3, 3]
@@ -56,25 +37,25 @@ def test_a_cans_axis_is_found_from_its_visible_half():
 
 
 def test_a_box_and_a_bananas_arc_are_not_surfaces_of_revolution():
-    R, t, plane = _camera()
+    R, t, plane = table_camera()
     rng = np.random.default_rng(1)
     u, v = rng.uniform(-1, 1, (2, 3000))
     box = np.vstack(
         [np.c_[0.06 * u, 0.04 * v, np.full(3000, 0.08)], np.c_[0.06 * u, np.full(3000, -0.04), 0.04 + 0.04 * v]]
     )
     box_n = np.vstack([np.tile([0.0, 0.0, 1.0], (3000, 1)), np.tile([0.0, -1.0, 0.0], (3000, 1))])
-    assert not fit_axis(_seen(box, box_n, R, t), plane).accepted
+    assert not fit_axis(seen_by(box, box_n, R, t), plane).accepted
     # A banana's top: a 60 deg arc of a 15 cm circle, 3 cm wide, lying on the table.
     a = rng.uniform(-np.pi / 6, np.pi / 6, 4000)
     r = 0.15 + rng.uniform(-0.015, 0.015, 4000)
     arc = np.c_[r * np.sin(a), 0.1 - r * np.cos(a), np.full(4000, 0.035)]
-    assert not fit_axis(_seen(arc, np.tile([0.0, 0.0, 1.0], (4000, 1)), R, t), plane).accepted
+    assert not fit_axis(seen_by(arc, np.tile([0.0, 0.0, 1.0], (4000, 1)), R, t), plane).accepted
 
 
 def test_revolving_closes_the_far_half_of_a_ring():
-    R, t, plane = _camera()
+    R, t, plane = table_camera()
     pts, normals = _cylinder(0.04, 0.12)
-    seen = _seen(pts, normals, R, t)
+    seen = seen_by(pts, normals, R, t)
     axis = fit_axis(seen, plane)
     centre_cam = R @ np.r_[AXIS_WORLD, 0.06] + t
     frame = GridFrame(centre_cam, 0.005)
