@@ -16,7 +16,8 @@ from .run import GraspOptions, complete_view, grasp_and_save, pending_grasps
 from .viewsets import view_set_of
 
 # Household YCB objects of both model splits and a pybullet toy, views from all three evaluation
-# sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural shapes.
+# sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural
+# shapes, among them a box the pipeline completes as the box fitted to its points (shapeviewer.cuboid).
 SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
     ("ycb/021_bleach_cleanser", 0),
     ("ycb/021_bleach_cleanser", 120),
@@ -29,8 +30,9 @@ SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
     ("ycb/025_mug", 10_003),
     ("household/spray_bottle_004", 10_001),
     ("household/bowl_003", 10_002),
+    ("household/box_034", 522_697),
 )
-SAMPLE_VERSION = 2
+SAMPLE_VERSION = 3
 SAMPLE_DONE = "SAMPLE_DONE"  # marker file: every sample view has its completions and grasps
 
 
