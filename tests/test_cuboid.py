@@ -115,3 +115,23 @@ def test_a_wooden_block_on_the_table_is_completed_as_its_box():
     (off,) = complete_points([can.points_cam], completer, support_plane=can.plane_cam, fit_boxes=False)
     assert kept.cuboid is not None and not kept.boxed and np.allclose(kept.samples, off.samples, atol=1e-6)
     assert off.cuboid is None
+
+
+def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_path):
+    """A tabletop view of a box in the evaluation (and the sample store): our completions' rows say
+    they are the fitted box, the results store keeps it, and the Dataset tab's label shows it."""
+    from shapeviewer.evaluation.results import ResultsStore
+    from shapeviewer.evaluation.run import complete_view
+    from shapeviewer.evaluation.viewsets import view_set_of
+    from shapeviewer.model import load_completer
+    from shapeviewer.viewer.dataset.summary import completion_label
+
+    name, view = "household/box_034", 522_697
+    record = complete_view(tmp_path, name, view, view_set_of(name, view), 0, load_completer())
+    priors = {r["method"]: r["prior"] for r in record["rows"]}
+    assert priors == {"Partial": "", "Mirror": "", "Hull": "", "Ours-fast": "box", "Ours-detailed": "box"}
+    store = ResultsStore(tmp_path)
+    store.sync()
+    detailed = next(c for c in store.completions(name, view) if c.method == "Ours-detailed")
+    assert detailed.prior == "box" and detailed.j80 > 0.85 and "fitted box" in completion_label(detailed)
+    assert {r["prior"] for r in store.rows() if r["method"] == "Hull"} == {""}

@@ -33,7 +33,8 @@ METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
 ENVELOPE = "Ours-envelope"
 GRASP_TABLE_METHODS = (*METHODS, ENVELOPE)  # the columns of the grasp tables
 METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
-ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error")
+# ``prior``: the shape prior the pipeline applied to our completions ("box", "revolution" or "").
+ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error", "prior")
 # What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
 KINDS = ("truth", "points", *METHODS)
 # Per view and method, means over its grasps (the keys of a view's "grasps" entries).

@@ -41,7 +41,7 @@ from .summaries import CompletionResult, GraspSummary, ObjectSummary, SyncReport
 log = logging.getLogger(__name__)
 
 INDEX_NAME = "index.sqlite"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 # The metrics the browser filters and sorts by, and which way is better.
 HIGHER_IS_BETTER = {
     "jaccard": True,
@@ -69,7 +69,7 @@ CREATE TABLE IF NOT EXISTS views (object TEXT, view INTEGER, view_set TEXT, seed
                                   truth TEXT, points TEXT, PRIMARY KEY (object, view));
 CREATE TABLE IF NOT EXISTS completions (object TEXT, view INTEGER, method TEXT, jaccard REAL, j80 REAL,
                                         hausdorff_mean_mm REAL, hausdorff_max_mm REAL, hausdorff_rms_mm REAL,
-                                        geodesic REAL, seconds REAL, error TEXT, mesh TEXT,
+                                        geodesic REAL, seconds REAL, error TEXT, mesh TEXT, prior TEXT,
                                         PRIMARY KEY (object, view, method));
 CREATE TABLE IF NOT EXISTS grasps (object TEXT, view INTEGER, method TEXT, hand TEXT, file TEXT, n INTEGER,
                                    joint_error_deg REAL, pose_error_mm REAL, epsilon_planned REAL,
@@ -262,8 +262,9 @@ class ResultsStore:
                     *[_db(_as_float(r.get(k))) for k in (*METRICS, "seconds")],
                     str(r.get("error") or ""),
                     files.get(m),
+                    str(r.get("prior") or ""),
                 )
-            slots = ", ".join("?" * (6 + len(METRICS)))
+            slots = ", ".join("?" * (7 + len(METRICS)))
             db.executemany(f"INSERT INTO completions VALUES ({slots})", completions.values())
             grasps = {}
             for g in parsed["grasps"]:
@@ -435,12 +436,15 @@ class ResultsStore:
     def completions(self, name: str, view: int) -> list[CompletionResult]:
         """Each method's completion of a view, in :data:`evaluate.METHODS` order (others after)."""
         rows = self._read(
-            f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh FROM completions WHERE object=? AND view=?",
+            f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh, prior FROM completions"
+            " WHERE object=? AND view=?",
             (name, int(view)),
         )
         out = [
-            CompletionResult(m, **dict(zip((*METRICS, "seconds"), map(_undb, vals))), error=err or "", mesh=mesh)
-            for m, *vals, err, mesh in rows
+            CompletionResult(
+                m, **dict(zip((*METRICS, "seconds"), map(_undb, vals))), error=err or "", mesh=mesh, prior=prior or ""
+            )
+            for m, *vals, err, mesh, prior in rows
         ]
         rank = {m: i for i, m in enumerate(METHODS)}
         return sorted(out, key=lambda c: (rank.get(c.method, len(rank)), c.method))
@@ -462,18 +466,18 @@ class ResultsStore:
         """Completion rows in the evaluation's format (:data:`evaluate.ROW_FIELDS`, NaN metrics on failure)."""
         sql = (
             f"SELECT c.object, c.view, v.view_set, c.method, {', '.join('c.' + k for k in METRICS)}, c.seconds, "
-            "c.error FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view"
+            "c.error, c.prior FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view"
         )
         wanted = None if names is None else set(names)
         out = []
         for r in self._read(sql + " ORDER BY c.object, c.view"):
             if wanted is not None and r[0] not in wanted:
                 continue
-            d = dict(zip(("object", "view", "view_set", "method", *METRICS, "seconds", "error"), r))
+            d = dict(zip(("object", "view", "view_set", "method", *METRICS, "seconds", "error", "prior"), r))
             d.update(kind=catalogue.shape_kind(d["object"]), sensor="")
             for k in (*METRICS, "seconds"):
                 d[k] = _undb(d[k])
-            d["error"] = d["error"] or ""
+            d["error"], d["prior"] = d["error"] or "", d["prior"] or ""
             out.append(d)
         rank = {m: i for i, m in enumerate(METHODS)}
         out.sort(key=lambda d: (d["object"], d["view"], rank.get(d["method"], len(rank))))

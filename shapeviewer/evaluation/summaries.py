@@ -63,7 +63,9 @@ class ViewInfo:
 
 @dataclass(frozen=True)
 class CompletionResult:
-    """One method's completion of a view: the metrics (NaN when it failed), its time and mesh file."""
+    """One method's completion of a view: the metrics (NaN when it failed), its time and mesh file,
+    and the shape prior the pipeline applied to it (``"box"``: completed as the box fitted to the
+    points, ``"revolution"``: the answers revolved about the table's normal; ``""``: none)."""
 
     method: str
     jaccard: float
@@ -75,6 +77,7 @@ class CompletionResult:
     seconds: float
     error: str
     mesh: str | None
+    prior: str = ""
 
     @property
     def ok(self) -> bool:

@@ -45,10 +45,12 @@ SHORT = {**SHORT_METHOD, "jaccard": "J", "hausdorff_mean_mm": "H mm", "geodesic"
 
 # Labels sit above their column, which is about 25 characters wide on a laptop screen: short lines.
 def completion_label(c: CompletionResult) -> str:
-    """A completion's label lines: Jaccard and geodesic divergence, then the mean Hausdorff (mm)."""
+    """A completion's label lines: Jaccard and geodesic divergence, then the mean Hausdorff (mm), and
+    the shape prior the pipeline applied, if any."""
     if not c.ok:
         return "failed:\n" + c.error[:24]
-    return f"J {fmt(c.jaccard, 2)} · G {fmt(c.geodesic, 2)}\nH {fmt(c.hausdorff_mean_mm, 1)} mm"
+    prior = {"box": "\nfitted box", "revolution": "\nrevolved"}.get(c.prior, "")
+    return f"J {fmt(c.jaccard, 2)} · G {fmt(c.geodesic, 2)}\nH {fmt(c.hausdorff_mean_mm, 1)} mm{prior}"
 
 
 def grasp_label(g: GraspSummary) -> str:
