@@ -124,7 +124,7 @@ def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_p
     from shapeviewer.evaluation.run import complete_view
     from shapeviewer.evaluation.viewsets import view_set_of
     from shapeviewer.model import load_completer
-    from shapeviewer.viewer.dataset.summary import completion_label
+    from shapeviewer.viewer.dataset.summary import completion_label, view_markdown
 
     name, view = "household/box_034", 522_697
     record = complete_view(tmp_path, name, view, view_set_of(name, view), 0, load_completer())
@@ -135,3 +135,5 @@ def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_p
     detailed = next(c for c in store.completions(name, view) if c.method == "Ours-detailed")
     assert detailed.prior == "box" and detailed.j80 > 0.85 and "fitted box" in completion_label(detailed)
     assert {r["prior"] for r in store.rows() if r["method"] == "Hull"} == {""}
+    text = view_markdown(store.object(name), store.view(name, view), store.completions(name, view), [])
+    assert "Ours: the box fitted to the points" in text

@@ -162,6 +162,10 @@ def view_markdown(
     failed = [f"{c.method}: {c.error}" for c in completions if not c.ok]
     if failed:
         lines += ["", *(f"_{e}_  " for e in failed)]
+    priors = sorted({c.prior for c in completions if c.ok and c.prior})
+    if priors:
+        what = {"box": "the box fitted to the points", "revolution": "revolved about the table's normal"}
+        lines += ["", "Ours: " + "; ".join(what.get(p, p) for p in priors) + " (a shape prior of the pipeline)"]
     if grasps:
         hands = sorted({g.hand for g in grasps})
         lines += [
