@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from .camera import transform_points
 from .segment import points_on_table
 from .voxel import GridFrame
 
@@ -80,8 +81,7 @@ class Cuboid:
     def to_box(self, points_cam: np.ndarray) -> np.ndarray:
         """(N, 3) camera-frame points (metres) in the box's own frame: origin at its centre, axes along
         its edges (metres)."""
-        T = self.T_table_cam
-        table = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+        table = transform_points(self.T_table_cam, np.asarray(points_cam).reshape(-1, 3))
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         rel = table[:, :2] - self.centre
         return np.column_stack([rel @ [c, s], rel @ [-s, c], table[:, 2] - self.extents[2] / 2])

@@ -97,6 +97,12 @@ class Completion:
         return self.axis is not None and self.axis.accepted
 
     @property
+    def prior(self) -> str:
+        """The shape prior applied to the answers, as the evaluation records it: ``"box"``
+        (:attr:`boxed`), ``"revolution"`` (:attr:`revolved`) or ``""``."""
+        return "box" if self.boxed else "revolution" if self.revolved else ""
+
+    @property
     def grid_out(self) -> np.ndarray:
         """(40, 40, 40) bool: the CNN's output grid, the voxels with occupancy probability above
         :attr:`grid_level` (its estimate of the paper's Y: every voxel the object's surface passes through)."""
@@ -227,7 +233,7 @@ def complete_points(
             box = fit_cuboid(pts[i], plane)
             if box.accepted:
                 own = np.broadcast_to(occupancy(box, fr), own.shape).copy()
-        if plane is not None and revolve_answers and not (box is not None and box.accepted):
+        if plane is not None and revolve_answers and not (box and box.accepted):
             axis = fit_axis(pts[i], plane)
             if axis.accepted:
                 own = revolve(own, fr, axis, free=ctx[0])

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .camera import transform_points
 from .segment import points_on_table
 from .voxel import GridFrame
 
@@ -162,8 +163,7 @@ def revolve(
     h = frame.voxel_size / CELLS_PER_VOXEL
     index = np.indices((dim,) * 3).reshape(3, -1).T
     T = axis.T_table_cam
-    T_cam_table = np.linalg.inv(T)
-    table = frame.voxel_centers(index) @ T[:3, :3].T + T[:3, 3]
+    table = transform_points(T, frame.voxel_centers(index))
     keep = table[:, 2] > 0
     if free is not None:
         keep &= ~np.asarray(free, dtype=bool).reshape(-1)
@@ -190,7 +190,7 @@ def revolve(
         ],
         axis=-1,
     ).reshape(-1, 3)
-    g = frame.to_grid(around @ T_cam_table[:3, :3].T + T_cam_table[:3, 3]) - 0.5
+    g = frame.to_grid(transform_points(np.linalg.inv(T), around)) - 0.5
     inside = ((g >= 0) & (g <= dim - 1)).all(axis=1)
     values = np.full((len(stack), len(g)), np.inf, dtype=np.float32)
     for i, grid in enumerate(stack):

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .camera import transform_points
 from .capture import Capture
 
 # Occupied voxels clustered at most (see segment_scene's max_voxels): 200k voxels with their
@@ -378,7 +379,7 @@ def points_on_table(
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) < 10:
         raise ValueError(f"{len(pts)} points are too few to fit {fitting}")
-    return T, pts, pts @ T[:3, :3].T + T[:3, 3]
+    return T, pts, transform_points(T, pts)
 
 
 def _check_parameters(**positive: float) -> None:

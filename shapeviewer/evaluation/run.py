@@ -179,7 +179,7 @@ def evaluate_view(
         try:
             mesh, seconds = run()
             if method.startswith("Ours"):
-                row["prior"] = completion_prior(cnn["completion"])
+                row["prior"] = cnn["completion"].prior
             row["seconds"] = float(seconds)
             mesh.export(mesh_dir / f"{stem}__{method}.ply")
             row.update({k: float(v) for k, v in completion_metrics(mesh, truth, seed=seed).items()})
@@ -188,12 +188,6 @@ def evaluate_view(
             log.info("%s view %d %s failed:\n%s", name, view, method, traceback.format_exc())
         rows.append(row)
     return rows
-
-
-def completion_prior(c) -> str:
-    """The shape prior the pipeline applied to completion ``c`` (a :class:`~shapeviewer.pipeline.Completion`),
-    as its rows record it: ``"box"``, ``"revolution"`` or ``""``."""
-    return "box" if c.boxed else "revolution" if c.revolved else ""
 
 
 # ----------------------------------------------------------------------------------------------

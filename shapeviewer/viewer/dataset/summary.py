@@ -37,6 +37,12 @@ COLORS = {
     "Ours-fast": (240, 150, 60),
     "Ours-detailed": (205, 95, 45),
 }
+# The shape priors a completion row may record (pipeline.Completion.prior): its label's word, and
+# the view panel's phrase.
+PRIORS = {
+    "box": ("fitted box", "the box fitted to the points"),
+    "revolution": ("revolved", "revolved about the table's normal"),
+}
 INDEX_ROWS = 12  # rows of the index table in the panel
 BARS_OBJECTS = 25  # objects in the per-object chart
 # Short column titles for the narrow panel.
@@ -49,7 +55,7 @@ def completion_label(c: CompletionResult) -> str:
     the shape prior the pipeline applied, if any."""
     if not c.ok:
         return "failed:\n" + c.error[:24]
-    prior = {"box": "\nfitted box", "revolution": "\nrevolved"}.get(c.prior, "")
+    prior = f"\n{PRIORS[c.prior][0]}" if c.prior in PRIORS else ""
     return f"J {fmt(c.jaccard, 2)} · G {fmt(c.geodesic, 2)}\nH {fmt(c.hausdorff_mean_mm, 1)} mm{prior}"
 
 
@@ -164,8 +170,8 @@ def view_markdown(
         lines += ["", *(f"_{e}_  " for e in failed)]
     priors = sorted({c.prior for c in completions if c.ok and c.prior})
     if priors:
-        what = {"box": "the box fitted to the points", "revolution": "revolved about the table's normal"}
-        lines += ["", "Ours: " + "; ".join(what.get(p, p) for p in priors) + " (a shape prior of the pipeline)"]
+        what = "; ".join(PRIORS[p][1] if p in PRIORS else p for p in priors)
+        lines += ["", f"Ours: {what} (a shape prior of the pipeline)"]
     if grasps:
         hands = sorted({g.hand for g in grasps})
         lines += [
