@@ -14,7 +14,6 @@ from shapeviewer.evaluation import run as ev
 from shapeviewer.grasp.plan import PlanSettings, plan
 from shapeviewer.grasp.robust import (
     RECHECK_TOP,
-    WIDEN_BELOW,
     Robustness,
     envelope_mesh,
     is_weak,
@@ -194,14 +193,18 @@ def test_every_other_sample_is_meshed_where_the_network_hedges():
 
 def test_a_ranking_is_weak_when_its_most_robust_grasp_lifts_too_few_samples():
     """The wider search's trigger: the most robust grasp (after the planner's lift check) lifted
-    fewer than WIDEN_BELOW of its sample tests, was never lifted on them, or there is no grasp."""
+    fewer than ``below`` (by default all) of its sample tests, was never lifted on them, or there is no
+    grasp."""
     up, down = LiftResult(True, 0.12, 0.0), LiftResult(False, 0.0, 0.0)
     eps = [0.05] * 8
-    strong = [Robustness.of(eps, lifted=0.875, lift_rounds=2), Robustness.of(eps, lifted=0.5, lift_rounds=1)]
-    assert WIDEN_BELOW == 0.8 and not is_weak(strong, [up, up])
-    # The grasp that lifted 7 in 8 samples dropped the completion in the planner's check: it ranks
+    strong = [Robustness.of(eps, lifted=1.0, lift_rounds=2), Robustness.of(eps, lifted=0.5, lift_rounds=1)]
+    assert not is_weak(strong, [up, up])
+    # The grasp that lifted all 8 samples dropped the completion in the planner's check: it ranks
     # second, and the first lifted only half of its tests.
     assert is_weak(strong, [down, up])
+    # By default only a grasp that lifted every sample test is trusted; 15 of 16 is not.
+    assert is_weak([Robustness.of(eps, lifted=0.9375, lift_rounds=2)], [up])
+    assert not is_weak([Robustness.of(eps, lifted=0.9375, lift_rounds=2)], [up], below=0.8)
     assert is_weak([Robustness.of(eps, lifted=0.75, lift_rounds=2)], [up])
     assert not is_weak([Robustness.of(eps, lifted=0.75, lift_rounds=2)], [up], below=0.7)
     assert is_weak([Robustness.of(eps)], [up])  # scored by closure only, never lifted
