@@ -267,7 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="SHARE",
         help="with --robust: when the most robust grasp lifts fewer than this share of its sample tests, plan "
-        "as many again on the grasp envelope and rank them with the first (default: 1.0, i.e. unless it lifted them all; 0: never)",
+        "as many again on the grasp envelope and rank them with the first (default: 1.0, i.e. unless it lifted "
+        "them all; 0: never)",
     )
     s.add_argument(
         "--grasp-methods",
