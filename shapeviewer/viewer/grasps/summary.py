@@ -13,7 +13,7 @@ import numpy as np
 
 from ...grasp.execute import ExecutionResult
 from ...grasp.hands import Hand, get_hand
-from ...grasp.robust import LIFT_TOP, RECHECK_TOP, ROBUST_QUANTILE, Robustness, rank_robust
+from ...grasp.robust import LIFT_TOP, RECHECK_TOP, ROBUST_QUANTILE, WIDEN_BELOW, Robustness, rank_robust
 from ...grasp.state import LiftResult
 from .state import SegmentGrasps
 
@@ -113,8 +113,9 @@ def info_markdown(s: SegmentGrasps | None, real_capture: bool, selected: int | N
             f"then the share of samples it holds on, then its {100 * ROBUST_QUANTILE:.0f}% ε), "
             "after those that lift the mesh."
             + (
-                f" No grasp of the {s.method} mesh lifted most of its sample tests, so the wider search planned "
-                f"#{s.wider_from + 1}-#{len(s.grasps)} on the grasp envelope and ranked them with the others."
+                f" No grasp of the {s.method} mesh lifted {WIDEN_BELOW:.0%} of its sample tests, so the wider "
+                f"search planned #{s.wider_from + 1}-#{len(s.grasps)} on the grasp envelope and ranked them with "
+                "the others."
                 if s.wider_from is not None
                 else ""
             )
