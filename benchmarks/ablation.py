@@ -28,13 +28,13 @@ from collections import defaultdict
 
 import numpy as np
 
-from shapeviewer.baselines import hull_mesh
+from shapeviewer.completion.baselines import hull_mesh
+from shapeviewer.completion.model import load_completer
+from shapeviewer.completion.reconstruct import detailed_mesh, fast_mesh
+from shapeviewer.completion.voxel import context_grids, partial_to_grid
+from shapeviewer.evaluation.metrics import hausdorff, sampled_jaccard
 from shapeviewer.evaluation.viewsets import render_view, sample_views
-from shapeviewer.metrics import hausdorff, sampled_jaccard
-from shapeviewer.model import load_completer
-from shapeviewer.reconstruct import detailed_mesh, fast_mesh
 from shapeviewer.sim import catalogue
-from shapeviewer.voxel import context_grids, partial_to_grid
 
 
 def score(mesh, truth) -> tuple[float, float]:

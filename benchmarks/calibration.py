@@ -19,8 +19,8 @@ import time
 import numpy as np
 from scipy import ndimage
 
-from shapeviewer.model import load_completer, sample_spread
-from shapeviewer.train import check_placement, load_grid_sets
+from shapeviewer.completion.model import load_completer, sample_spread
+from shapeviewer.training.train import check_placement, load_grid_sets
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """The detailed mesh of a fitted box against the network's, on the views of an evaluation folder.
 
-For each tabletop view: the cuboid fitted to the observed points (:func:`shapeviewer.cuboid.fit_cuboid`)
+For each tabletop view: the cuboid fitted to the observed points (:func:`shapeviewer.completion.cuboid.fit_cuboid`)
 and whether it is accepted as a box; for the accepted views (every view with ``--all``) the segment is
 completed again, as the network answers it (``complete_points(..., fit_boxes=False)``) and as the
 box (its occupancy in place of the answers, what the pipeline does by default for an accepted box),
@@ -25,17 +25,17 @@ from prior_study import main, tabletop_view
 
 @cache
 def _completer():
-    from shapeviewer.model import load_completer
+    from shapeviewer.completion.model import load_completer
 
     return load_completer()
 
 
 def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     """One view's figures (:mod:`prior_study`), None without a table or an Ours-detailed row."""
-    from shapeviewer.cuboid import fit_cuboid, occupancy
+    from shapeviewer.completion.cuboid import fit_cuboid, occupancy
+    from shapeviewer.completion.pipeline import complete_points, completion_detailed_mesh
+    from shapeviewer.evaluation.metrics import hausdorff, sampled_jaccard
     from shapeviewer.evaluation.results import read_mesh
-    from shapeviewer.metrics import hausdorff, sampled_jaccard
-    from shapeviewer.pipeline import complete_points, completion_detailed_mesh
 
     view = tabletop_view(root, file)
     if view is None:

@@ -32,9 +32,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="warm loads per view")
     args = ap.parse_args()
 
-    from shapeviewer.capture import Capture
     from shapeviewer.evaluation.results import ResultsStore
     from shapeviewer.evaluation.sample_store import build_sample_store, sample_store_complete, sample_store_dir
+    from shapeviewer.perception.capture import Capture
     from shapeviewer.viewer import ViewerApp
 
     root = args.results or sample_store_dir()

@@ -55,8 +55,9 @@ def close_segments():
     noise model: the object's pixels only (camera frame, metres), the table's plane exact."""
     import numpy as np
 
-    from shapeviewer.camera import Intrinsics, RaycastRenderer, RealSenseNoise, backproject_valid, look_at
+    from shapeviewer.perception.camera import Intrinsics, backproject_valid, look_at
     from shapeviewer.sim import catalogue
+    from shapeviewer.sim.sensor import RaycastRenderer, RealSenseNoise
 
     intr = Intrinsics(1280, 720, 910.0, 910.0, 640.0, 360.0)
     for name in CLOSE_OBJECTS:
@@ -80,9 +81,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--close", action="store_true", help="also dense clouds of objects 0.35-0.6 m away")
     args = ap.parse_args(argv)
 
-    from shapeviewer.model import load_completer
-    from shapeviewer.pipeline import SegmentTooSmallError, check_segment, complete_points, completion_detailed_mesh
-    from shapeviewer.segment import segment_scene
+    from shapeviewer.completion.model import load_completer
+    from shapeviewer.completion.pipeline import (
+        SegmentTooSmallError,
+        check_segment,
+        complete_points,
+        completion_detailed_mesh,
+    )
+    from shapeviewer.perception.segment import segment_scene
 
     completer = load_completer(args.weights)
     rows: dict[str, list[float]] = {k: [] for k, _ in STEPS} | {"cnn": [], "algorithm_1": [], "total": []}

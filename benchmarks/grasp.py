@@ -38,8 +38,8 @@ DEFAULT_OBJECTS = ("ycb/006_mustard_bottle", "ycb/025_mug", "ycb/004_sugar_box",
 
 def completed(mesh_world: trimesh.Trimesh) -> trimesh.Trimesh:
     """A perfect-CNN completion of ``mesh_world`` (world frame): marching cubes of its 40^3 occupancy."""
-    from shapeviewer.reconstruct import fast_mesh
-    from shapeviewer.voxel import frame_for_points, solid_grid
+    from shapeviewer.completion.reconstruct import fast_mesh
+    from shapeviewer.completion.voxel import frame_for_points, solid_grid
 
     frame = frame_for_points(np.asarray(mesh_world.vertices))
     return fast_mesh(solid_grid(mesh_world, frame).astype(np.float32), frame)
@@ -65,9 +65,9 @@ def catalogue_cases(names: list[str]) -> list[Case]:
 def scene_cases(seed: int) -> list[Case]:
     """The default scene's objects as the viewer plans on them: per segment showing one true object,
     the CNN's fast mesh in the world frame (the scene's ``T_world_cam``), and that object's true mesh."""
-    from shapeviewer.model import load_completer
-    from shapeviewer.pipeline import complete_points
-    from shapeviewer.segment import segment_scene
+    from shapeviewer.completion.model import load_completer
+    from shapeviewer.completion.pipeline import complete_points
+    from shapeviewer.perception.segment import segment_scene
     from shapeviewer.sim.demo_scene import default_scene
     from shapeviewer.viewer.grasps import ground_truth_object, object_mesh_world
 

@@ -1,7 +1,7 @@
 """How much of the true object the paper's 40^3 placement leaves outside the grid, on tabletop views.
 
 The paper places the visible points' bounding box with its centre at voxel (20, 20, 18) and its
-largest side 32 voxels long (:func:`shapeviewer.voxel.frame_for_points`). The visible points are the
+largest side 32 voxels long (:func:`shapeviewer.completion.voxel.frame_for_points`). The visible points are the
 object's front, so what the network must add lies behind them; whatever lies past the grid's back
 face (z = 40) cannot be completed at all, and the fast and detailed meshes end there.
 
@@ -32,10 +32,10 @@ def extent(name: str, view: int, seed: int) -> dict | None:
     """One view: the true surface's grid coordinates, summarised (None when the object is hidden)."""
     import trimesh
 
-    from shapeviewer.camera import transform_points
+    from shapeviewer.completion.voxel import GRID_DIM, frame_for_points
+    from shapeviewer.perception.camera import transform_points
     from shapeviewer.sim import catalogue
     from shapeviewer.sim.tabletop import render_tabletop_view
-    from shapeviewer.voxel import GRID_DIM, frame_for_points
 
     v = render_tabletop_view(name, view, seed=seed)
     if v is None:
@@ -65,7 +65,7 @@ def main() -> None:
 
     from novel_kinds import holdout_household, tabletop_views  # benchmarks/novel_kinds.py: the same views
 
-    from shapeviewer.voxel import GRID_DIM
+    from shapeviewer.completion.voxel import GRID_DIM
 
     jobs = [(n, view, args.seed) for n, view in tabletop_views(holdout_household(args.per_kind), args.views, args.seed)]
     with mp.get_context("spawn").Pool(args.processes) as pool:

@@ -22,11 +22,11 @@ from collections import defaultdict
 import numpy as np
 from scipy import ndimage
 
+from shapeviewer.completion.reconstruct import MESH_LEVEL, EmptyCompletionError, grid_mesh
+from shapeviewer.completion.voxel import partial_to_grid, solid_fraction, solid_grid
+from shapeviewer.evaluation.metrics import sampled_jaccard
 from shapeviewer.evaluation.viewsets import render_view, sample_views
-from shapeviewer.metrics import sampled_jaccard
-from shapeviewer.reconstruct import MESH_LEVEL, EmptyCompletionError, grid_mesh
 from shapeviewer.sim import catalogue
-from shapeviewer.voxel import partial_to_grid, solid_fraction, solid_grid
 
 BLUR = 0.7  # voxels
 

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from shapeviewer.model import load_completer
+from shapeviewer.completion.model import load_completer
 
 
 def median_seconds(fn, repeats: int) -> float:

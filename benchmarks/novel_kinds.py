@@ -8,8 +8,8 @@ cutting the segment and finding the table). Its points (``--input mask``: every 
 as a caller with known poses or a detector's mask has them; ``segment``: the app's segment) and
 the support plane the segmentation found go to
 ``shapeviewer.complete(points_cam, support_plane=plane, mode=...)``; the fast and detailed meshes
-and the Hull (:func:`shapeviewer.baselines.hull_mesh`) are scored against the true mesh by J80
-(:func:`shapeviewer.metrics.sampled_jaccard`) and the mean symmetric surface distance (mm).
+and the Hull (:func:`shapeviewer.completion.baselines.hull_mesh`) are scored against the true mesh by J80
+(:func:`shapeviewer.evaluation.metrics.sampled_jaccard`) and the mean symmetric surface distance (mm).
 
     python benchmarks/novel_kinds.py [--per-kind 4] [--views 2] [--seed 0] [--input mask] [--processes 2] \
         [--weights PATH] [--sensor realsense] [--noise-scale 2]
@@ -34,7 +34,7 @@ WEIGHTS: str | None = None  # the worker's CNN weights (None: the shipped model)
 
 @cache
 def _completer():
-    from shapeviewer.model import load_completer
+    from shapeviewer.completion.model import load_completer
 
     return load_completer(WEIGHTS)
 
@@ -42,8 +42,8 @@ def _completer():
 def score(name: str, view: int, seed: int, source: str, sensor: str | None, noise_scale: float) -> dict | None:
     """One view's J80 and mean distance per method (None when the object was hidden or not segmented)."""
     import shapeviewer as sv
-    from shapeviewer.baselines import hull_mesh
-    from shapeviewer.metrics import hausdorff, sampled_jaccard
+    from shapeviewer.completion.baselines import hull_mesh
+    from shapeviewer.evaluation.metrics import hausdorff, sampled_jaccard
     from shapeviewer.sim.tabletop import render_tabletop_view
 
     v = render_tabletop_view(name, view, seed=seed, sensor=sensor, noise_scale=noise_scale)

@@ -45,7 +45,7 @@ TARGET = {"segmentation": 0.12, "click_to_mesh": 0.15}
 
 
 def load_captures(seeds: list[int]) -> list:
-    from shapeviewer.capture import load_capture
+    from shapeviewer.perception.capture import load_capture
     from shapeviewer.sim.demo_scene import default_scene
 
     caps = [default_scene(s) for s in seeds]
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default=None, help="CNN weights (default: the shipped model)")
     args = ap.parse_args(argv)
 
-    from shapeviewer.segment import segment_scene
+    from shapeviewer.perception.segment import segment_scene
     from shapeviewer.viewer import ViewerApp
 
     captures = load_captures(args.seeds)

@@ -1,9 +1,9 @@
 """The detailed mesh of the network's answer revolved about the table's normal, against the shipped one.
 
 For each tabletop view of an evaluation folder: the vertical axis fitted to the observed points
-(:func:`shapeviewer.revolve.fit_axis`), whether it is accepted as a surface of revolution, and, for the
+(:func:`shapeviewer.completion.revolve.fit_axis`), whether it is accepted as a surface of revolution, and, for the
 accepted views (every view with ``--all``), Algorithm 1's mesh of the mean of the revolved sample
-completions (:func:`shapeviewer.revolve.revolve` on the saved samples, the seen free space left
+completions (:func:`shapeviewer.completion.revolve.revolve` on the saved samples, the seen free space left
 empty: what ``complete_points(..., revolve_answers=True)`` gives) scored against the true mesh beside
 the folder's own Ours-detailed scores (the folder evaluated without revolving, the default).
 
@@ -23,13 +23,13 @@ from prior_study import main, tabletop_view
 
 def view_scores(root: Path, file: Path, every: bool) -> dict | None:
     """One view's figures, None without a table, samples or Ours-detailed row."""
+    from shapeviewer.completion.reconstruct import detailed_mesh
+    from shapeviewer.completion.revolve import fit_axis, revolve
+    from shapeviewer.completion.voxel import context_grids
+    from shapeviewer.evaluation.metrics import hausdorff, sampled_jaccard
     from shapeviewer.evaluation.records import samples_file, view_stem
     from shapeviewer.evaluation.results import read_mesh
     from shapeviewer.evaluation.run import load_samples
-    from shapeviewer.metrics import hausdorff, sampled_jaccard
-    from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.revolve import fit_axis, revolve
-    from shapeviewer.voxel import context_grids
 
     view = tabletop_view(root, file)
     if view is None:

@@ -53,6 +53,8 @@ def main() -> None:
     ap.add_argument("--wider", action="store_true", help="also time the wider search where the ranking is weak")
     args = ap.parse_args()
 
+    from shapeviewer.completion.model import load_completer
+    from shapeviewer.completion.voxel import context_grids, partial_to_grid
     from shapeviewer.evaluation.run import grasp_world
     from shapeviewer.evaluation.viewsets import TABLETOP_SETS, render_view, sample_views
     from shapeviewer.grasp.plan import plan
@@ -66,8 +68,6 @@ def main() -> None:
         robustness,
         sample_meshes,
     )
-    from shapeviewer.model import load_completer
-    from shapeviewer.voxel import context_grids, partial_to_grid
 
     completer = load_completer()
     kind = "tabletop" if args.set in TABLETOP_SETS else "paper"

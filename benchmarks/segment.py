@@ -1,7 +1,7 @@
 """Segmentation speed on the real organized captures (paper: 0.119 s per scene, SPEC §1).
 
 Usage: ``python benchmarks/segment.py [--runs 5] [--data DIR]``. Prints, per capture, the median
-over the runs of every stage of :func:`shapeviewer.segment.segment_scene` and what it found.
+over the runs of every stage of :func:`shapeviewer.perception.segment.segment_scene` and what it found.
 The captures are PCL's public test clouds in ``../shared/data/real`` (never copied into the repo).
 """
 
@@ -12,8 +12,8 @@ import os
 import statistics
 from pathlib import Path
 
-from shapeviewer.capture import load_capture
-from shapeviewer.segment import segment_scene
+from shapeviewer.perception.capture import load_capture
+from shapeviewer.perception.segment import segment_scene
 
 PAPER_SECONDS = 0.119
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"

@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from shapeviewer.interrupt import alive, descendants
+from shapeviewer.runtime.interrupt import alive, descendants
 
 ROOT = Path(__file__).resolve().parents[1]
 STOP_TARGET = 3.0  # s from Ctrl-C until the server and every process it started have gone

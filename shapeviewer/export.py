@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from .camera import transform_points
-from .voxel import GridFrame
+from .completion.voxel import GridFrame
+from .perception.camera import transform_points
 
 MESH_FORMATS = ("ply", "obj", "stl", "glb")
 
@@ -68,15 +68,15 @@ def grids_npz_bytes(
     samples: np.ndarray | None = None,
 ) -> bytes:
     """CNN input and output grids with their frame: ``grid_in`` (bool), ``probabilities`` (float32),
-    ``grid_out`` (bool, the output grid when given: :attr:`~shapeviewer.pipeline.Completion.grid_out`),
+    ``grid_out`` (bool, the output grid when given: :attr:`~shapeviewer.completion.pipeline.Completion.grid_out`),
     ``grid_to_camera`` (4x4, grid coordinates -> camera metres; voxel (i,j,k) centre at (i,j,k)+0.5),
     ``T_world_cam`` (4x4) and ``frame_json``; with ``samples`` ((n, 40, 40, 40) sample completions,
-    :meth:`~shapeviewer.model.Completer.predict_samples`) also ``samples`` (float16) and ``spread``
-    (float32, their per-voxel disagreement, :func:`~shapeviewer.model.sample_spread`: the
+    :meth:`~shapeviewer.completion.model.Completer.predict_samples`) also ``samples`` (float16) and ``spread``
+    (float32, their per-voxel disagreement, :func:`~shapeviewer.completion.model.sample_spread`: the
     completion's uncertainty)."""
     arrays: dict[str, Any] = {} if grid_out is None else {"grid_out": np.asarray(grid_out, bool)}
     if samples is not None:
-        from .model import sample_spread  # torch is loaded only by callers that have samples
+        from .completion.model import sample_spread  # torch is loaded only by callers that have samples
 
         samples = np.asarray(samples, np.float32)
         arrays |= {"samples": samples.astype(np.float16), "spread": sample_spread(samples)}

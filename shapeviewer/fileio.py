@@ -1,4 +1,4 @@
-"""Writing files so that a reader never sees half of one: :func:`atomic_write`."""
+"""Files: the cache folder (:func:`cache_dir`) and writes a reader never sees half of (:func:`atomic_write`)."""
 
 from __future__ import annotations
 
@@ -31,3 +31,10 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def cache_dir() -> Path:
+    """Where generated files live (``$SHAPEVIEWER_CACHE``, default ``~/.cache/shapeviewer``)."""
+    d = Path(os.environ.get("SHAPEVIEWER_CACHE", Path.home() / ".cache" / "shapeviewer"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d

@@ -19,8 +19,8 @@ import trimesh
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation.records import METHODS, METRICS, view_stem
 from shapeviewer.evaluation.run import T_WORLD_CAM
-from shapeviewer.generate import view_pose
 from shapeviewer.sim import catalogue
+from shapeviewer.training.generate import view_pose
 
 # (object, view): two views of one object, one of a holdout model, one of a pybullet object.
 VIEWS = (("ycb/025_mug", 3), ("ycb/025_mug", 40), ("ycb/006_mustard_bottle", 7), ("pybullet/duck", 11))

@@ -7,11 +7,12 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from shapeviewer.baselines import PARTIAL_LEAF_FACTOR, find_mirror_plane, mirror_mesh, partial_mesh
-from shapeviewer.camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid, look_at
-from shapeviewer.metrics import hausdorff, jaccard
-from shapeviewer.reconstruct import mean_nn_distance
+from shapeviewer.completion.baselines import PARTIAL_LEAF_FACTOR, find_mirror_plane, mirror_mesh, partial_mesh
+from shapeviewer.completion.reconstruct import mean_nn_distance
+from shapeviewer.evaluation.metrics import hausdorff, jaccard
+from shapeviewer.perception.camera import Intrinsics, backproject_valid, look_at
 from shapeviewer.sim.catalogue import load_mesh
+from shapeviewer.sim.sensor import KinectNoise, RaycastRenderer
 
 BOX, BOTTLE, MUG = "ycb/004_sugar_box", "ycb/006_mustard_bottle", "ycb/025_mug"
 

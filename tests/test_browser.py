@@ -59,8 +59,8 @@ def test_click_segment_completes_it(tmp_path):
 
 @needs_browser
 def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_path):
-    from shapeviewer.camera import transform_points
     from shapeviewer.grasp.hands import get_hand
+    from shapeviewer.perception.camera import transform_points
     from shapeviewer.viewer import ViewerApp
     from shapeviewer.viewer.grasps import hand_skeleton
     from shapeviewer.viewer.rays import ray_through

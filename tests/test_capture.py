@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from shapeviewer.camera import Intrinsics, backproject
-from shapeviewer.capture import CaptureError, fit_intrinsics, load_capture, load_cloud, load_depth
+from shapeviewer.perception.camera import Intrinsics, backproject
+from shapeviewer.perception.capture import CaptureError, fit_intrinsics, load_capture, load_cloud, load_depth
 
 # file -> (organized shape, finite points, (fx, fy, cx, cy) or None, has colours); numbers from the README
 REAL = {
@@ -238,7 +238,7 @@ def test_depth_npy_round_trip_and_scale(tmp_path: Path) -> None:
 def test_depth_of_another_size_scales_kinect_intrinsics(tmp_path: Path, caplog) -> None:
     small = Intrinsics(320, 240, 262.5, 262.5, 159.5, 119.5)
     np.save(tmp_path / "small.npy", _synthetic_depth(small))
-    with caplog.at_level(logging.INFO, logger="shapeviewer.capture"):
+    with caplog.at_level(logging.INFO, logger="shapeviewer.perception.capture"):
         cap = load_capture(tmp_path / "small.npy")
     assert cap.intrinsics == small
     assert "scaled" in caplog.text and "small.npy" in caplog.text

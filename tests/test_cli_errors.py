@@ -2,7 +2,7 @@
 traceback, within 30 s; no child process and no empty ``--out`` folder left behind; every V-HACD run
 and wait bounded; the V-HACD cache bounded.
 
-Commands run as subprocesses (``python -m shapeviewer.cli``) with a private cache folder.
+Commands run as subprocesses (``python -m shapeviewer.cli.main``) with a private cache folder.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import pytest
 import trimesh
 
 from shapeviewer.grasp import world as W
-from shapeviewer.interrupt import alive, descendants
+from shapeviewer.runtime.interrupt import alive, descendants
 
 from helpers import free_port
 
@@ -42,7 +42,7 @@ def env(tmp_path: Path) -> dict[str, str]:
 def run_cli(args: list, env: dict, cwd: Path, timeout: float = LIMIT) -> subprocess.CompletedProcess:
     t0 = time.monotonic()
     out = subprocess.run(
-        [sys.executable, "-m", "shapeviewer.cli", *map(str, args)],
+        [sys.executable, "-m", "shapeviewer.cli.main", *map(str, args)],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -158,7 +158,7 @@ def test_grasp_budget_bounds_a_hanging_decomposition(tmp_path, env):
 BOUNDED_RUN = textwrap.dedent("""
     import sys, time, trimesh
     from shapeviewer.grasp.world import Decomposition, DecompositionError, convex_decomposition
-    from shapeviewer.interrupt import descendants
+    from shapeviewer.runtime.interrupt import descendants
     triangle = trimesh.Trimesh([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], [[0, 1, 2]])  # V-HACD spins forever
     t0 = time.monotonic()
     try:
@@ -221,7 +221,7 @@ def test_ctrl_c_stops_a_command_with_worker_processes(tmp_path, env):
         [
             sys.executable,
             "-m",
-            "shapeviewer.cli",
+            "shapeviewer.cli.main",
             "generate",
             "--out",
             "gen",

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 import shapeviewer
-from shapeviewer.baselines import hull_mesh
-from shapeviewer.model import load_completer
-from shapeviewer.pipeline import SegmentTooSmallError, complete_points, completion_detailed_mesh
-from shapeviewer.reconstruct import detailed_mesh, fast_mesh
-from shapeviewer.revolve import revolve
+from shapeviewer.completion.baselines import hull_mesh
+from shapeviewer.completion.model import load_completer
+from shapeviewer.completion.pipeline import SegmentTooSmallError, complete_points, completion_detailed_mesh
+from shapeviewer.completion.reconstruct import detailed_mesh, fast_mesh
+from shapeviewer.completion.revolve import revolve
+from shapeviewer.completion.voxel import context_grids, partial_to_grid
 from shapeviewer.sim.tabletop import render_tabletop_view
-from shapeviewer.voxel import context_grids, partial_to_grid
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_a_mask_with_the_table_around_it_and_stray_pixels_completes_like_the_seg
     ring = table[cKDTree(can).query(table, distance_upper_bound=0.02)[0] < 0.02]
     strays = can[:20] + np.array([0.0, 0.0, 0.25])  # a streak of flying pixels 25 cm behind
     mask = np.concatenate([can, ring, strays])
-    from shapeviewer.metrics import sampled_jaccard
+    from shapeviewer.evaluation.metrics import sampled_jaccard
 
     truth = v.truth_cam()
     mesh = shapeviewer.complete(mask, support_plane=v.plane_cam, mode="fast")
@@ -180,8 +180,8 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
 
     import trimesh
 
-    from shapeviewer.cli import main
-    from shapeviewer.model import sample_spread
+    from shapeviewer.cli.main import main
+    from shapeviewer.completion.model import sample_spread
 
     capture = Path(__file__).resolve().parents[1] / "static_assets/captures/table_scene_mug_stereo_textured.pcd"
     out = tmp_path / "out"

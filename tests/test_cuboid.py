@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shapeviewer.cuboid import SILHOUETTE_MARGIN, fit_cuboid, occupancy
-from shapeviewer.voxel import GridFrame
+from shapeviewer.completion.cuboid import SILHOUETTE_MARGIN, fit_cuboid, occupancy
+from shapeviewer.completion.voxel import GridFrame
 
 from helpers import seen_by, table_camera
 
@@ -95,9 +95,9 @@ def test_a_wooden_block_on_the_table_is_completed_as_its_box():
     completion is that box, closer to the true block than the network's answer; a can is left as
     the network answered it."""
     import shapeviewer
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.model import load_completer
-    from shapeviewer.pipeline import complete_points
+    from shapeviewer.completion.model import load_completer
+    from shapeviewer.completion.pipeline import complete_points
+    from shapeviewer.evaluation.metrics import hausdorff
     from shapeviewer.sim.tabletop import render_tabletop_view
 
     v = render_tabletop_view("ycb/036_wood_block", 0, seed=0, sensor="realsense")
@@ -120,10 +120,10 @@ def test_a_wooden_block_on_the_table_is_completed_as_its_box():
 def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_path):
     """A tabletop view of a box in the evaluation (and the sample store): our completions' rows say
     they are the fitted box, the results store keeps it, and the Dataset tab's label shows it."""
+    from shapeviewer.completion.model import load_completer
     from shapeviewer.evaluation.results import ResultsStore
     from shapeviewer.evaluation.run import complete_view
     from shapeviewer.evaluation.viewsets import view_set_of
-    from shapeviewer.model import load_completer
     from shapeviewer.viewer.dataset.summary import completion_label, view_markdown
 
     name, view = "household/box_034", 522_697

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.camera import transform_points
 from shapeviewer.evaluation import run as ev
 from shapeviewer.evaluation.records import view_stem
 from shapeviewer.evaluation.results import ResultsStore
 from shapeviewer.grasp.serialize import grasps_from_json
+from shapeviewer.perception.camera import transform_points
 from shapeviewer.viewer import ViewerApp
 from shapeviewer.viewer.dataset import ROOT, layout_view
 
@@ -210,7 +210,7 @@ def test_back_to_the_pipeline_restores_its_layers(app):
 
 
 def test_bad_results_folder_is_a_clear_error(tmp_path):
-    from shapeviewer.capture import Capture
+    from shapeviewer.perception.capture import Capture
 
     pts = np.random.default_rng(0).normal([0.0, 0.0, 1.0], 0.02, (500, 3))
     with pytest.raises(FileNotFoundError, match="results folder not found"):
@@ -218,7 +218,7 @@ def test_bad_results_folder_is_a_clear_error(tmp_path):
 
 
 def test_serve_with_a_missing_results_folder_says_so(tmp_path, capsys):
-    from shapeviewer.cli import main
+    from shapeviewer.cli.main import main
 
     assert main(["serve", "--port", str(free_port()), "--results", str(tmp_path / "missing")]) == 2
     assert "results folder not found" in capsys.readouterr().err

@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-from shapeviewer.cli import main
+from shapeviewer.cli.main import main
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.evaluation.viewsets import PAPER_SETS, TABLETOP_SETS, TABLETOP_VIEW_OFFSET

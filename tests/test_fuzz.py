@@ -7,10 +7,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from shapeviewer.model import load_completer
-from shapeviewer.pipeline import SegmentTooSmallError, check_segment, complete_points
-from shapeviewer.reconstruct import EmptyCompletionError, detailed_mesh
-from shapeviewer.segment import SegmentationError, segment_scene
+from shapeviewer.completion.model import load_completer
+from shapeviewer.completion.pipeline import SegmentTooSmallError, check_segment, complete_points
+from shapeviewer.completion.reconstruct import EmptyCompletionError, detailed_mesh
+from shapeviewer.perception.segment import SegmentationError, segment_scene
 
 REFUSALS = (SegmentationError, SegmentTooSmallError, EmptyCompletionError)
 

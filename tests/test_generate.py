@@ -5,8 +5,10 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from shapeviewer.cli import main
-from shapeviewer.generate import (
+from shapeviewer.cli.main import main
+from shapeviewer.completion.voxel import GridFrame
+from shapeviewer.sim import catalogue
+from shapeviewer.training.generate import (
     GenerationConfig,
     generate,
     generate_object,
@@ -14,9 +16,7 @@ from shapeviewer.generate import (
     view_noise_scale,
     view_pose,
 )
-from shapeviewer.sim import catalogue
-from shapeviewer.train import load_grid_sets
-from shapeviewer.voxel import GridFrame
+from shapeviewer.training.train import load_grid_sets
 
 
 def _unpack(a):
@@ -75,7 +75,7 @@ def test_pairs_have_x_mostly_inside_y_in_the_right_frame(generated):
 
 
 def test_rejection_rule_drops_views_with_too_few_voxels(tmp_path, monkeypatch):
-    import shapeviewer.generate as gen
+    import shapeviewer.training.generate as gen
 
     monkeypatch.setattr(gen, "MIN_X_VOXELS", 10**6)
     r = generate_object("ycb/025_mug", tmp_path, GenerationConfig(views=3))
@@ -173,7 +173,7 @@ def test_a_folder_refuses_views_in_another_grid_placement(generated):
 
 
 def test_an_interrupted_first_run_still_guards_its_placement(tmp_path, monkeypatch):
-    import shapeviewer.generate as gen
+    import shapeviewer.training.generate as gen
 
     def interrupted(task):
         raise KeyboardInterrupt

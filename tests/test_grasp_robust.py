@@ -149,8 +149,8 @@ def test_the_envelope_keeps_what_the_samples_hedge_on():
     """Samples sure of a 10-voxel core and split about a 4-voxel shell around it (a vessel's hedged
     cavity out to its wall): the envelope is closed, holds the whole shell, moves with ``T_world_cam``,
     and the surface level keeps only the core."""
-    from shapeviewer.reconstruct import fast_mesh
-    from shapeviewer.voxel import GridFrame
+    from shapeviewer.completion.reconstruct import fast_mesh
+    from shapeviewer.completion.voxel import GridFrame
 
     frame = GridFrame(np.array([0.0, 0.0, 0.5]), 0.005)
     p = np.zeros((40, 40, 40), np.float32)
@@ -173,7 +173,7 @@ def test_every_other_sample_is_meshed_where_the_network_hedges():
     """Samples sure of a 10-voxel core and 0.4 about a shell out to 18 voxels: samples 0, 2... are
     meshed at the level (the core), 1, 3... ``hedge`` below it (the shell), all closed and moved by
     ``T_world_cam``; with ``hedge=0`` all keep the core."""
-    from shapeviewer.voxel import GridFrame
+    from shapeviewer.completion.voxel import GridFrame
 
     frame = GridFrame(np.array([0.0, 0.0, 0.5]), 0.005)
     p = np.zeros((40, 40, 40), np.float32)

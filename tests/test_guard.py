@@ -17,7 +17,7 @@ import viser
 import websockets
 from websockets.exceptions import InvalidStatus
 
-from shapeviewer.capture import Capture
+from shapeviewer.perception.capture import Capture
 from shapeviewer.viewer.guard import Guard, cookie_name, server_url, start_server
 
 from helpers import free_port

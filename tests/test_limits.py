@@ -17,9 +17,9 @@ from PIL import Image
 
 from shapeviewer import capture as capture_module
 from shapeviewer import segment as segment_module
-from shapeviewer.camera import Intrinsics, backproject
-from shapeviewer.capture import MAX_CAPTURE_POINTS, CaptureError, decimate, fit_intrinsics, load_capture
-from shapeviewer.segment import segment_scene
+from shapeviewer.perception.camera import Intrinsics, backproject
+from shapeviewer.perception.capture import MAX_CAPTURE_POINTS, CaptureError, decimate, fit_intrinsics, load_capture
+from shapeviewer.perception.segment import segment_scene
 
 from helpers import free_port, headless_session
 
@@ -82,7 +82,7 @@ def test_decimating_an_unorganized_cloud() -> None:
 def test_load_capture_caps_the_points_kept(tmp_path: Path, caplog) -> None:
     n = MAX_CAPTURE_POINTS + 200_000
     np.save(tmp_path / "big.npy", np.random.default_rng(1).uniform(0.5, 1.5, (n, 3)).astype(np.float32))
-    with caplog.at_level(logging.WARNING, logger="shapeviewer.capture"):
+    with caplog.at_level(logging.WARNING, logger="shapeviewer.perception.capture"):
         cap = load_capture(tmp_path / "big.npy")
     assert len(cap.flat_points()) <= MAX_CAPTURE_POINTS and cap.original_points == n
     assert "big.npy" in caplog.text and f"{n:,} points" in caplog.text

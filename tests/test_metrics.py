@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.metrics import completion_metrics, geodesic_divergence, hausdorff, jaccard
+from shapeviewer.evaluation.metrics import completion_metrics, geodesic_divergence, hausdorff, jaccard
 
 # Objects sit in front of a camera, as the evaluation's meshes do (camera frame, metres).
 WHERE = np.array([0.05, -0.03, 0.8])

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from shapeviewer.model import WeightsError, build, load_completer, save_weights
+from shapeviewer.completion.model import WeightsError, build, load_completer, save_weights
 
 
 def _box_grid():
@@ -66,9 +66,9 @@ def test_varley2017_is_the_papers_network_and_trains_on_cpu():
 def test_completion_samples_agree_where_the_camera_looked_and_differ_behind():
     from scipy import ndimage
 
-    from shapeviewer.model import sample_spread
+    from shapeviewer.completion.model import sample_spread
+    from shapeviewer.completion.voxel import context_grids, partial_to_grid
     from shapeviewer.sim.tabletop import render_tabletop_view
-    from shapeviewer.voxel import context_grids, partial_to_grid
 
     c = load_completer()
     v = render_tabletop_view("ycb/025_mug", 5, seed=3)
@@ -101,7 +101,7 @@ def test_sample_spread_counts_disagreement_about_occupancy_not_about_probability
     """Two samples that decide differently at the spread's level (0.3 and 0.5 about 0.4) are less
     sure of a voxel than two that both call it empty (0.05 and 0.25), though their probabilities
     differ as much; full agreement is no spread, an even split the most."""
-    from shapeviewer.model import SPREAD_LEVEL, sample_spread
+    from shapeviewer.completion.model import SPREAD_LEVEL, sample_spread
 
     assert SPREAD_LEVEL == 0.4
     samples = np.array([[0.3, 0.05, 0.9, 0.0], [0.5, 0.25, 0.9, 1.0]], dtype=np.float32)
@@ -114,8 +114,8 @@ def test_sample_spread_counts_disagreement_about_occupancy_not_about_probability
 
 
 def test_a_network_is_meshed_at_the_level_of_the_label_it_learnt(tmp_path):
-    from shapeviewer.pipeline import complete_points
-    from shapeviewer.reconstruct import MESH_LEVEL
+    from shapeviewer.completion.pipeline import complete_points
+    from shapeviewer.completion.reconstruct import MESH_LEVEL
 
     # The shipped network, saved as if trained on Y and as if trained on the soft label (whose 0.5
     # contour is the surface).

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import shapeviewer as sv
-from shapeviewer.metrics import sampled_jaccard
+from shapeviewer.evaluation.metrics import sampled_jaccard
 from shapeviewer.sim import catalogue, household, novel
 from shapeviewer.sim.tabletop import render_tabletop_view
 
@@ -40,7 +40,7 @@ def test_a_novel_object_completes_from_its_tabletop_mask_better_than_its_hull():
     """What ``benchmarks/novel_kinds.py`` does for one view: the ring's pixels and the table the
     segmentation found, completed through the public entry point into a closed mesh that overlaps
     the true ring more than the hull of its visible points does."""
-    from shapeviewer.baselines import hull_mesh
+    from shapeviewer.completion.baselines import hull_mesh
 
     v = render_tabletop_view("novel/ring_001", 10_007, seed=0)
     assert v is not None

@@ -10,8 +10,8 @@ import time
 import pytest
 
 from shapeviewer import processes
-from shapeviewer.interrupt import alive
-from shapeviewer.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
+from shapeviewer.runtime.interrupt import alive
+from shapeviewer.runtime.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
 
 
 def report_and_return_pid(steps: int, *, progress, cancel) -> int:

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from shapeviewer.reconstruct import EmptyCompletionError, fast_mesh
-from shapeviewer.voxel import GridFrame
+from shapeviewer.completion.reconstruct import EmptyCompletionError, fast_mesh
+from shapeviewer.completion.voxel import GridFrame
 
 
 def _sphere_grid(radius, frame, centre):
@@ -36,7 +36,8 @@ def test_empty_output_is_a_clear_error():
 
 def _rendered_view(mesh, T_cam_obj, seed=0, intr=None, noise=None):
     """Observed points (camera frame) of ``mesh`` posed at ``T_cam_obj``; the Kinect by default."""
-    from shapeviewer.camera import Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
+    from shapeviewer.perception.camera import Intrinsics, backproject_valid
+    from shapeviewer.sim.sensor import KinectNoise, RaycastRenderer
 
     intr = intr or Intrinsics.kinect()
     depth, _ = RaycastRenderer([mesh]).render(intr, np.linalg.inv(T_cam_obj))
@@ -47,7 +48,7 @@ def _box_view(extents, angle, axis, position, seed=0):
     """A box posed in front of the Kinect: ``(box, T_cam_obj, observed points, grid frame)``."""
     import trimesh
 
-    from shapeviewer.voxel import partial_to_grid
+    from shapeviewer.completion.voxel import partial_to_grid
 
     box = trimesh.creation.box(extents)
     T = trimesh.transformations.rotation_matrix(angle, axis)
@@ -68,9 +69,9 @@ def test_detailed_mesh_is_closed_keeps_the_observed_detail_and_fills_the_back():
     import manifold3d
     import trimesh
 
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import solid_grid
+    from shapeviewer.completion.reconstruct import detailed_mesh
+    from shapeviewer.completion.voxel import solid_grid
+    from shapeviewer.evaluation.metrics import hausdorff
 
     box, T, pts, frame = _box_view([0.08, 0.05, 0.06], 0.6, [1, 1, 0], [0.02, -0.01, 0.7])
     # A perfect CNN: the true solid occupancy in the view's grid.
@@ -100,10 +101,11 @@ def test_a_dense_close_cloud_merges_at_a_bounded_resolution_and_stays_accurate()
     ratio stops at MAX_UPSAMPLE_RATIO (else a 300^3 merge grid), and the mesh still follows the box."""
     import trimesh
 
-    from shapeviewer.camera import Intrinsics, RealSenseNoise
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.reconstruct import MAX_UPSAMPLE_RATIO, detailed_mesh
-    from shapeviewer.voxel import partial_to_grid, solid_fraction, solid_grid
+    from shapeviewer.completion.reconstruct import MAX_UPSAMPLE_RATIO, detailed_mesh
+    from shapeviewer.completion.voxel import partial_to_grid, solid_fraction, solid_grid
+    from shapeviewer.evaluation.metrics import hausdorff
+    from shapeviewer.perception.camera import Intrinsics
+    from shapeviewer.sim.sensor import RealSenseNoise
 
     box = trimesh.creation.box([0.16, 0.06, 0.2])
     T = trimesh.transformations.rotation_matrix(0.6, [1, 1, 0])
@@ -126,9 +128,9 @@ def test_detailed_mesh_follows_the_probabilities_between_voxel_centres():
     # A network trained on the soft label says where between two voxel centres the surface lies;
     # the corner vote on thresholded voxels puts it half way, the linear up-sampling keeps it.
 
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import solid_fraction, solid_grid
+    from shapeviewer.completion.reconstruct import detailed_mesh
+    from shapeviewer.completion.voxel import solid_fraction, solid_grid
+    from shapeviewer.evaluation.metrics import hausdorff
 
     box, T, pts, frame = _box_view([0.07, 0.05, 0.06], 0.5, [1, 1, 0], [0.01, -0.01, 0.7])
     probs = solid_fraction(box, frame, solid_grid(box, frame, T), T, margin=0.0)
@@ -140,8 +142,8 @@ def test_detailed_mesh_follows_the_probabilities_between_voxel_centres():
     assert d_linear < d_vote
     assert abs(linear.volume / truth.volume - 1) < abs(vote.volume / truth.volume - 1)
     # At the up-sampled points themselves: far fewer land on the wrong side of the true surface.
+    from shapeviewer.completion.reconstruct import upsample_occupancy, upsample_probabilities
     from shapeviewer.geometry import o3d_tensor, raycasting_scene
-    from shapeviewer.reconstruct import upsample_occupancy, upsample_probabilities
 
     r = 3
     fine = np.argwhere(np.ones((39 * r,) * 3, bool))
@@ -157,9 +159,9 @@ def test_detailed_mesh_puts_its_visible_side_on_the_observed_points():
     # voxel a leaf behind it instead, so the seen side of the mesh lies on the points.
     import trimesh
 
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import solid_fraction, solid_grid
+    from shapeviewer.completion.reconstruct import detailed_mesh
+    from shapeviewer.completion.voxel import solid_fraction, solid_grid
+    from shapeviewer.evaluation.metrics import hausdorff
 
     box, T, pts, frame = _box_view([0.08, 0.05, 0.06], 0.6, [1, 1, 0], [0.02, -0.01, 0.7])
     probs = solid_fraction(box, frame, solid_grid(box, frame, T), T)
@@ -176,9 +178,9 @@ def test_detailed_mesh_keeps_a_thin_plate_whole():
     # A plate 3-4 CNN voxels thick, seen at a slant: the merged grid must not lose its body to
     # rounding or to the half-voxel surface shift.
 
-    from shapeviewer.metrics import hausdorff
-    from shapeviewer.reconstruct import detailed_mesh
-    from shapeviewer.voxel import solid_grid
+    from shapeviewer.completion.reconstruct import detailed_mesh
+    from shapeviewer.completion.voxel import solid_grid
+    from shapeviewer.evaluation.metrics import hausdorff
 
     plate, T, pts, frame = _box_view([0.10, 0.07, 0.012], 0.9, [1, 0.3, 0], [0.0, 0.02, 0.8], seed=3)
     probs = solid_grid(plate, frame, T).astype(np.float32)
@@ -196,7 +198,7 @@ def test_a_surface_through_grid_nodes_keeps_its_vertices_apart(tmp_path):
     import trimesh
     from scipy.spatial import cKDTree
 
-    from shapeviewer.reconstruct import LEVEL_NUDGE, grid_mesh
+    from shapeviewer.completion.reconstruct import LEVEL_NUDGE, grid_mesh
 
     r = np.linalg.norm(np.indices((40, 40, 40)) - 20.0, axis=0).astype(np.float32)
     values = np.float32(5.0) - r + np.float32(0.5 + LEVEL_NUDGE)  # on the level at 6 nodes and more

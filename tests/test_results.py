@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.camera import transform_points
 from shapeviewer.evaluation.records import METHODS, METRICS, ViewFileError, parse_view_file, view_stem
 from shapeviewer.evaluation.results import ResultsStore
 from shapeviewer.evaluation.run import T_WORLD_CAM
 from shapeviewer.evaluation.tables import summarize
 from shapeviewer.evaluation.viewsets import VIEW_SETS
+from shapeviewer.perception.camera import transform_points
 
 from store_factory import VIEWS, jaccard_of, make_store, truth_cam, write_view
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from shapeviewer.revolve import fit_axis, revolve
-from shapeviewer.voxel import GridFrame
+from shapeviewer.completion.revolve import fit_axis, revolve
+from shapeviewer.completion.voxel import GridFrame
 
 from helpers import seen_by, table_camera
 

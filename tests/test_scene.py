@@ -7,9 +7,9 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from shapeviewer.camera import Intrinsics, transform_points
-from shapeviewer.capture import Capture, SceneObject
 from shapeviewer.geometry import raycasting_scene
+from shapeviewer.perception.camera import Intrinsics, transform_points
+from shapeviewer.perception.capture import Capture, SceneObject
 from shapeviewer.sim.demo_scene import build_tabletop, capture_scene, default_scene
 
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shapeviewer.camera import look_at, transform_points
-from shapeviewer.capture import Capture, load_capture
-from shapeviewer.segment import (
+from shapeviewer.perception.camera import look_at, transform_points
+from shapeviewer.perception.capture import Capture, load_capture
+from shapeviewer.perception.segment import (
     MIN_HEIGHT,
     SegmentationError,
     flying_pixels,

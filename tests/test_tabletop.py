@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from shapeviewer.camera import KinectNoise, RealSenseNoise, noise_model
+from shapeviewer.completion.voxel import below_plane, context_grids, partial_to_grid, solid_grid
+from shapeviewer.sim.sensor import KinectNoise, RealSenseNoise, noise_model
 from shapeviewer.sim.tabletop import render_tabletop_view
-from shapeviewer.voxel import below_plane, context_grids, partial_to_grid, solid_grid
 
 
 @pytest.fixture(scope="module")

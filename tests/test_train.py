@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from shapeviewer.generate import GenerationConfig, generate
-from shapeviewer.model import load_completer
-from shapeviewer.train import (
+from shapeviewer.completion.model import load_completer
+from shapeviewer.training.generate import GenerationConfig, generate
+from shapeviewer.training.train import (
     PLANE_DROPOUT,
     TrainConfig,
     augment,
@@ -98,7 +98,7 @@ def test_augmentation_keeps_pairs_and_context_aligned():
 
 
 def test_warm_start_widens_a_one_channel_network_without_changing_it():
-    from shapeviewer.model import UNet3D, network_input
+    from shapeviewer.completion.model import UNet3D, network_input
 
     torch.manual_seed(0)
     old = UNet3D(in_channels=1)
@@ -115,7 +115,7 @@ def test_warm_start_widens_a_one_channel_network_without_changing_it():
 
 
 def test_warm_start_widens_a_narrow_network_and_its_new_units_learn(tmp_path):
-    from shapeviewer.model import UNet3D, network_input
+    from shapeviewer.completion.model import UNet3D, network_input
 
     torch.manual_seed(0)
     old = UNet3D(width=8, in_channels=3)
@@ -175,7 +175,7 @@ def test_a_network_keeps_the_grid_placement_of_its_data(tiny_data, tmp_path, cap
     c = load_completer(tmp_path / "run" / "best_loss.pt")
     assert c.depth_shift == other
     # Scoring it on views in another placement is refused with the command that fixes it.
-    from shapeviewer.cli import main
+    from shapeviewer.cli.main import main
 
     assert main(["evaluate-grids", "--data", str(tiny_data), "--weights", str(tmp_path / "run" / "best_loss.pt")]) != 0
     assert f"generate --depth-shift {other:g}" in capsys.readouterr().err
@@ -205,7 +205,7 @@ def test_the_output_grid_is_the_best_estimate_of_the_papers_y(tiny_data):
 
 
 def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
-    from shapeviewer.cli import main
+    from shapeviewer.cli.main import main
 
     r = evaluate_grids(load_completer(), load_grid_sets(tiny_data), max_views=50)
     for v in r.values():  # every view counted once, under its object's kind
@@ -228,7 +228,7 @@ def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
 def test_evaluate_grids_scores_the_mean_of_the_mirrored_answers(tiny_data, capsys):
     """``samples=8`` scores the occupancy the detailed mesh meshes (the mean of the 8 mirrored
     answers), view by view, and it completes these views at least as well as the single answer."""
-    from shapeviewer.cli import main
+    from shapeviewer.cli.main import main
 
     c = load_completer()
     sets = load_grid_sets(tiny_data)
@@ -250,9 +250,9 @@ def test_evaluate_grids_scores_the_mean_of_the_mirrored_answers(tiny_data, capsy
 
 
 def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys):
-    from shapeviewer.cli import main
-    from shapeviewer.model import build, save_weights
-    from shapeviewer.train import average_weights
+    from shapeviewer.cli.main import main
+    from shapeviewer.completion.model import build, save_weights
+    from shapeviewer.training.train import average_weights
 
     nets = []
     for seed in (0, 1):

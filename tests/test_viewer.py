@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.camera import transform_points
+from shapeviewer.perception.camera import transform_points
 from shapeviewer.viewer.rays import first_hit, project_to_pixels, ray_through
 from shapeviewer.viewer.session import Session
 from shapeviewer.viewer.visuals import surface_voxels
@@ -181,7 +181,7 @@ def test_pick_prefers_the_nearest_segment():
 
 def test_projection_matches_a_ray():
     # A camera at (0, -1, 0.5) looking at the origin (OpenCV axes: x right, y down, z forward).
-    from shapeviewer.camera import look_at
+    from shapeviewer.perception.camera import look_at
 
     T = look_at([0, -1, 0.5], [0, 0, 0])
     p = np.array([[0.0, 0.0, 0.0], [0.1, 0.05, 0.02]])

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.camera import transform_points
 from shapeviewer.grasp.robust import LIFT_TOP, RECHECK_TOP, WIDEN_BELOW, rank_robust, robustness
 from shapeviewer.grasp.serialize import grasps_from_json
+from shapeviewer.perception.camera import transform_points
 from shapeviewer.viewer import grasps as G
 from shapeviewer.viewer.session import Session
 

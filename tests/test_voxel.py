@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.reconstruct import grid_mesh
-from shapeviewer.voxel import (
+from shapeviewer.completion.reconstruct import grid_mesh
+from shapeviewer.completion.voxel import (
     GridFrame,
     partial_to_grid,
     points_to_grid,

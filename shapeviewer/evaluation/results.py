@@ -582,21 +582,21 @@ class ResultsStore:
         The evaluation renders each view as the training data is (:func:`generate.view_pose` of
         name, view and seed), so the pose follows from those three numbers.
         """
-        from ..generate import view_pose
+        from ..training.generate import view_pose
 
         info = self.view(name, view)
         return view_pose(name, view, 0 if info.seed is None else info.seed)
 
     def capture(self, name: str, view: int):
-        """The view as a :class:`~shapeviewer.capture.Capture` the live pipeline can complete.
+        """The view as a :class:`~shapeviewer.perception.capture.Capture` the live pipeline can complete.
 
         ``points_cam`` are the saved partial points (camera optical frame, metres). The world frame
         is the object's frame with its lowest point on z = 0 (the evaluation renders the object
         floating, without a table; this puts a virtual floor under it), and ``objects`` holds the
         ground truth there, so the viewer draws the capture upright with its sensor.
         """
-        from ..camera import Intrinsics
-        from ..capture import Capture, SceneObject
+        from ..perception.camera import Intrinsics
+        from ..perception.capture import Capture, SceneObject
 
         points = self.load_points(name, view)
         T_obj_cam = np.linalg.inv(self.T_cam_obj(name, view))

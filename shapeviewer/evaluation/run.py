@@ -53,8 +53,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..backends import BACKENDS, ray_init
 from ..fileio import atomic_write
+from ..runtime.backends import BACKENDS, ray_init
 from ..sim import catalogue
 from .records import (
     ENVELOPE,
@@ -100,9 +100,9 @@ def evaluate_view(
     """Every method on one view: one completion row per method (a failing method records its
     error), each carrying the view's ``support_plane`` for :func:`records.view_record`. Meshes go
     to ``out_dir/meshes`` (camera optical frame, metres)."""
-    from ..baselines import hull_mesh, mirror_mesh, partial_mesh
-    from ..metrics import completion_metrics
-    from ..pipeline import complete_points, completion_detailed_mesh
+    from ..completion.baselines import hull_mesh, mirror_mesh, partial_mesh
+    from ..completion.pipeline import complete_points, completion_detailed_mesh
+    from .metrics import completion_metrics
 
     view_set = view_set or catalogue.view_split(name, view)
     mesh_dir = Path(out_dir) / "meshes"
@@ -271,7 +271,7 @@ def grasp_world(record: dict) -> tuple[np.ndarray, bool]:
     object, the evaluation world frame ``T_WORLD_CAM`` without a table."""
     if record.get("support_plane") is None:
         return T_WORLD_CAM, False
-    from ..segment import table_frame
+    from ..perception.segment import table_frame
 
     return table_frame(np.asarray(record["support_plane"], dtype=np.float64)), True
 
@@ -435,10 +435,10 @@ def grasp_view(out_dir, record: dict, method: str, options: GraspOptions = Grasp
 
 def load_samples(path: Path):
     """A view's saved sample completions (:func:`records.samples_file`): ``(samples, frame, level)``,
-    the (n, 40, 40, 40) probabilities, their :class:`~shapeviewer.voxel.GridFrame` and the level the
+    the (n, 40, 40, 40) probabilities, their :class:`~shapeviewer.completion.voxel.GridFrame` and the level the
     network's meshes are taken at (files written before it was saved: ``MESH_LEVEL``)."""
-    from ..reconstruct import MESH_LEVEL
-    from ..voxel import GridFrame
+    from ..completion.reconstruct import MESH_LEVEL
+    from ..completion.voxel import GridFrame
 
     with np.load(path) as saved:
         frame = GridFrame(saved["center"], float(saved["voxel_size"]))
@@ -530,7 +530,7 @@ def _init_worker(weights, threads: int) -> None:
 
 def _completer():
     if "completer" not in _WORKER:
-        from ..model import load_completer
+        from ..completion.model import load_completer
 
         _WORKER["completer"] = load_completer(_WORKER.get("weights"))
     return _WORKER["completer"]

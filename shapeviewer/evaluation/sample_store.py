@@ -1,6 +1,6 @@
 """The sample store: a few evaluated views for a first look in the Dataset tab (``python app.py``
 without ``--results``), built in the background by the viewer and kept per CNN weights under
-:func:`catalogue.cache_dir`."""
+:func:`~shapeviewer.fileio.cache_dir`."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from .viewsets import view_set_of
 
 # Household YCB objects of both model splits and a pybullet toy, views from all three evaluation
 # sets, and tabletop views (numbered from viewsets.TABLETOP_VIEW_OFFSET) of a mug and procedural
-# shapes, among them a box the pipeline completes as the box fitted to its points (shapeviewer.cuboid).
+# shapes, among them a box the pipeline completes as the box fitted to its points (shapeviewer.completion.cuboid).
 SAMPLE_VIEWS: tuple[tuple[str, int], ...] = (
     ("ycb/021_bleach_cleanser", 0),
     ("ycb/021_bleach_cleanser", 120),
@@ -45,11 +45,11 @@ def sample_grasp_options() -> GraspOptions:
 
 
 def sample_store_dir(weights: str | Path | None = None) -> Path:
-    """Where the sample store of the given CNN weights lives (under :func:`catalogue.cache_dir`).
+    """Where the sample store of the given CNN weights lives (under :func:`~shapeviewer.fileio.cache_dir`).
 
     The folder name holds a hash of the weights file, so new weights get a new sample store.
     """
-    from ..model import DEFAULT_WEIGHTS
+    from ..completion.model import DEFAULT_WEIGHTS
 
     path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
     tag = hashlib.sha1(path.read_bytes()).hexdigest()[:10] if path.is_file() else "untrained"
@@ -99,7 +99,7 @@ def build_sample_store(
         if record is None:
             step(f"completing {name} view {view}")
             if completer is None:
-                from ..model import load_completer
+                from ..completion.model import load_completer
 
                 completer = load_completer(weights)
             record = complete_view(root, name, view, view_set_of(name, view), seed, completer)

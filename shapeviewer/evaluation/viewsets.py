@@ -68,7 +68,7 @@ def sample_views(n_per_set: int = 50, seed: int = 0, views: str = "paper") -> li
 def _sample_paper(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
     """Holdout-model views: a holdout object, then a view, uniformly. Training/holdout views: a
     training object, then a view, until the view's :func:`catalogue.view_split` is the wanted set."""
-    from ..generate import ORIENTATION_GRID
+    from ..training.generate import ORIENTATION_GRID
 
     rng = np.random.default_rng([seed, 4])
     names = sorted(e.name for e in catalogue.catalogue())
@@ -135,9 +135,10 @@ def render_view(name: str, view: int, view_set: str, seed: int = 0) -> EvalView:
         if v is None:
             raise ValueError(f"tabletop view {view} of {name}: the object was hidden or not segmented")
         return EvalView(v.points_cam, v.truth_cam(), v.plane_cam, v.sensor)
-    from ..camera import Intrinsics, KinectNoise, RaycastRenderer
-    from ..generate import noise_seed, view_pose
-    from ..generate import render_view as render_object
+    from ..perception.camera import Intrinsics
+    from ..sim.sensor import KinectNoise, RaycastRenderer
+    from ..training.generate import noise_seed, view_pose
+    from ..training.generate import render_view as render_object
 
     mesh = catalogue.centred_mesh(name)
     T = view_pose(name, view, seed)

@@ -2,8 +2,8 @@
 the most robust lifted, on sample completions, with the palm where a robot might really put it.
 
 A completion is one guess at the side the camera never saw; the CNN's sample completions
-(:meth:`~shapeviewer.model.Completer.predict_samples`, meshed one by one with
-:func:`~shapeviewer.reconstruct.fast_mesh`) are other plausible guesses. A robot's hand also never
+(:meth:`~shapeviewer.completion.model.Completer.predict_samples`, meshed one by one with
+:func:`~shapeviewer.completion.reconstruct.fast_mesh`) are other plausible guesses. A robot's hand also never
 lands exactly where it was sent: camera calibration and arm errors of a few millimetres and degrees
 are common. So :func:`robustness` re-closes every planned grasp on every sample with its palm moved
 by that sample's pose error (:func:`palm_perturbations`: none on sample 0, ``POSE_NOISE`` and
@@ -76,6 +76,8 @@ import trimesh
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 from scipy.spatial.transform import Rotation
 
+from shapeviewer.completion.reconstruct import MESH_LEVEL, fast_mesh
+from shapeviewer.completion.voxel import GridFrame
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.lift import lift_test
@@ -84,8 +86,6 @@ from shapeviewer.grasp.quality import max_radius
 from shapeviewer.grasp.search import CancelFn, ProgressFn
 from shapeviewer.grasp.state import Grasp, HandState, LiftResult, lift_order
 from shapeviewer.grasp.world import GraspWorld, convex_decomposition, mesh_hash
-from shapeviewer.reconstruct import MESH_LEVEL, fast_mesh
-from shapeviewer.voxel import GridFrame
 
 ROBUST_QUANTILE = 0.25  # the robust score's pessimistic epsilon: the lower quartile over samples
 POSE_NOISE = 0.005  # m: std of each axis of the palm's position error on a sample
@@ -501,8 +501,8 @@ def sample_meshes(
     hedge: float = HEDGE,
 ) -> list[trimesh.Trimesh]:
     """The mesh of each sample completion ((n, 40, 40, 40) occupancy probabilities in the grid
-    ``frame``; :meth:`~shapeviewer.model.Completer.predict_samples`) as the fast mesh is made
-    (:func:`~shapeviewer.reconstruct.fast_mesh`), moved from the camera frame to the world frame
+    ``frame``; :meth:`~shapeviewer.completion.model.Completer.predict_samples`) as the fast mesh is made
+    (:func:`~shapeviewer.completion.reconstruct.fast_mesh`), moved from the camera frame to the world frame
     by ``T_world_cam`` (metres). Samples 0, 2, 4... are meshed at ``level``, samples 1, 3, 5... at
     ``level - hedge`` (:data:`HEDGE`: where the network is unsure, they reach further out).
 

@@ -42,7 +42,8 @@ from shapeviewer.grasp.hands import (
     set_joints,
     set_palm_pose,
 )
-from shapeviewer.sim.catalogue import cache_dir
+
+from ..fileio import cache_dir
 
 CONTACT_TOL = 1e-3  # a link within this distance (m) of an obstacle is in contact
 # Closest-point queries look this far (m); anything farther counts as this far, which caps a

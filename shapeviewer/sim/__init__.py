@@ -1,3 +1,3 @@
 """The simulated side of the system: the object catalogue, procedural household shapes, the app's demo
-scene and tabletop views. Training data (:mod:`shapeviewer.generate`) and the evaluation's test
+scene and tabletop views. Training data (:mod:`shapeviewer.training.generate`) and the evaluation's test
 views are rendered from these."""

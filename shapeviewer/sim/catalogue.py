@@ -17,7 +17,6 @@ import hashlib
 import io
 import json
 import logging
-import os
 import re
 from dataclasses import asdict, dataclass
 from functools import lru_cache
@@ -26,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..fileio import atomic_write
+from ..fileio import atomic_write, cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -75,13 +74,6 @@ class ObjectEntry:
     split: str
     extents: tuple
     faces: int
-
-
-def cache_dir() -> Path:
-    """Where generated files live (``$SHAPEVIEWER_CACHE``, default ``~/.cache/shapeviewer``)."""
-    d = Path(os.environ.get("SHAPEVIEWER_CACHE", Path.home() / ".cache" / "shapeviewer"))
-    d.mkdir(parents=True, exist_ok=True)
-    return d
 
 
 def stable_percent(key: str) -> int:

@@ -19,12 +19,13 @@ import pybullet
 import trimesh
 from pybullet_utils.bullet_client import BulletClient
 
-from ..camera import Intrinsics, KinectNoise, RaycastRenderer, backproject, look_at, transform_points
-from ..capture import Capture, SceneObject
 from ..geometry import pose_to_pq
 from ..grasp.hands import get_base_pose
 from ..grasp.world import convex_decomposition
+from ..perception.camera import Intrinsics, backproject, look_at, transform_points
+from ..perception.capture import Capture, SceneObject
 from .catalogue import catalogue, load_mesh
+from .sensor import KinectNoise, RaycastRenderer
 
 # YCB objects that look like a tabletop and stand (or lie) stably; the bowl, mugs and cups are
 # concave and show why completion needs more than a convex hull.

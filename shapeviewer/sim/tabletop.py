@@ -3,7 +3,7 @@
 This is how completion is used on a robot, and what the paper's floating views on a view sphere
 are not: the object rests in a stable pose on a support plane (which hides its bottom), neighbours
 may occlude it, the camera sits where a robot's head or wrist camera would (20-70 degrees above the
-table, 0.4-1.2 m away), the depth sensor is a Kinect or a RealSense (:mod:`shapeviewer.camera`),
+table, 0.4-1.2 m away), the depth sensor is a Kinect or a RealSense (:mod:`shapeviewer.perception.camera`),
 and the segment is what the app's own segmentation (:func:`segment.segment_scene`) cuts out of the
 frame, not a perfect mask. Training data (``shapeviewer generate --scenes tabletop``) and the
 ``tabletop`` evaluation set use the same views.
@@ -22,9 +22,10 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from ..camera import Intrinsics, RaycastRenderer, backproject, look_at, noise_model, transform_points
-from ..capture import Capture
+from ..perception.camera import Intrinsics, backproject, look_at, transform_points
+from ..perception.capture import Capture
 from . import catalogue
+from .sensor import RaycastRenderer, noise_model
 
 ELEVATION_DEG = (20.0, 70.0)  # camera above the table plane, seen from the target
 DISTANCE = (0.4, 1.2)  # metres from the camera to the target's centre
@@ -137,9 +138,9 @@ def render_tabletop_view(
         neighbour_pool: catalogue names neighbours are drawn from (default: every catalogue object
             of the target's split, so holdout models stand among holdout models).
         tries: camera/layout draws before giving up (a neighbour may hide the target).
-        noise_scale: the sensor's depth error times this (:meth:`shapeviewer.camera.DepthNoise.scaled`).
+        noise_scale: the sensor's depth error times this (:meth:`shapeviewer.sim.sensor.DepthNoise.scaled`).
     """
-    from ..segment import SegmentationError, segment_scene
+    from ..perception.segment import SegmentationError, segment_scene
     from .demo_scene import table_mesh
 
     rng = np.random.default_rng(catalogue.object_seed(name, seed, view, 11))

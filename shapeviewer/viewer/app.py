@@ -23,11 +23,11 @@ import numpy as np
 import viser
 from PIL import Image
 
-from ..camera import Intrinsics
-from ..capture import Capture, load_capture
+from ..completion.model import load_completer, training_curves
 from ..evaluation.sample_store import sample_store_complete, sample_store_dir
-from ..model import load_completer, training_curves
-from ..processes import ProcessPool
+from ..perception.camera import Intrinsics
+from ..perception.capture import Capture, load_capture
+from ..runtime.processes import ProcessPool
 from . import panel as P
 from .audience import Audience
 from .dataset import DEFAULT, SampleBuild

@@ -15,8 +15,8 @@ import numpy as np
 import trimesh
 import viser
 
-from ..camera import Intrinsics, transform_points
-from ..pipeline import Completion
+from ..completion.pipeline import Completion
+from ..perception.camera import Intrinsics, transform_points
 from .audience import Audience
 from .panel import LAYERS, MESH_KINDS
 from .state import LoadedScene
@@ -261,7 +261,7 @@ class PipelineDrawing:
 
     def draw_confidence(self, scene: LoadedScene, c: Completion, spread: np.ndarray) -> None:
         """The surface voxels of the completed solid coloured by ``spread`` (per voxel of the grid,
-        how much sample completions disagree: :func:`~shapeviewer.model.sample_spread`)."""
+        how much sample completions disagree: :func:`~shapeviewer.completion.model.sample_spread`)."""
         idx = surface_voxels(c.solid)
         self.draw_voxels(
             scene, f"/confidence/seg_{c.segment_id}", idx, c, OUTPUT_VOXEL_FILL, spread_colors(spread[tuple(idx.T)])

@@ -6,7 +6,7 @@ No viser: the app sends the ``(file name, content)`` pairs made here to the brow
 from __future__ import annotations
 
 from .. import export
-from ..pipeline import Completion
+from ..completion.pipeline import Completion
 from .state import MESH_KINDS, MESH_TITLES, LoadedScene
 
 

@@ -10,11 +10,11 @@ from dataclasses import dataclass
 
 import viser
 
-from ..cuboid import Cuboid
+from ..completion.cuboid import Cuboid
+from ..completion.model import SYMMETRIES
+from ..completion.pipeline import GUESS_SPREAD, Completion
+from ..completion.revolve import RevolutionAxis
 from ..export import MESH_FORMATS
-from ..model import SYMMETRIES
-from ..pipeline import GUESS_SPREAD, Completion
-from ..revolve import RevolutionAxis
 from .state import MESH_KINDS, MESH_TITLES
 
 NO_SEGMENT = "(none)"
@@ -369,9 +369,9 @@ def confidence_markdown(
     cuboid: Cuboid | None = None,
 ) -> str:
     """The confidence of a completion: mean sample spread on each side (seen, unseen) and the share
-    of completed voxels that are a guess (see :func:`~shapeviewer.pipeline.confidence_figures`),
-    whether it is the box fitted to the points (``cuboid``, :mod:`shapeviewer.cuboid`) and whether its
-    answers were revolved about the table's normal (``axis``, :mod:`shapeviewer.revolve`)."""
+    of completed voxels that are a guess (see :func:`~shapeviewer.completion.pipeline.confidence_figures`),
+    whether it is the box fitted to the points (``cuboid``, :mod:`shapeviewer.completion.cuboid`) and whether its
+    answers were revolved about the table's normal (``axis``, :mod:`shapeviewer.completion.revolve`)."""
     text = (
         f"Segment **{segment_id}**: confidence of the completion  \n"
         + " · ".join(f"mean spread {what} side **{v:.3f}**" for what, v in spread_by_side)

@@ -2,7 +2,7 @@
 
 Everything is drawn in the WORLD frame (metres, z up): a synthetic capture knows its camera pose
 (``Capture.T_world_cam``, table top at z = 0); for a real capture the segmentation estimates a
-table-aligned world frame (``Segmentation.T_world_cam``); see :func:`~shapeviewer.segment.world_frame`.
+table-aligned world frame (``Segmentation.T_world_cam``); see :func:`~shapeviewer.perception.segment.world_frame`.
 Pipeline results come in the camera optical frame and are mapped with that ``T_world_cam``
 before they are sent.
 
@@ -34,19 +34,19 @@ import numpy as np
 import trimesh
 import viser
 
-from ..camera import Intrinsics
-from ..capture import Capture, CaptureError, load_capture
-from ..grasp.robust import sample_meshes
-from ..model import Completer
-from ..pipeline import (
+from ..completion.model import Completer
+from ..completion.pipeline import (
     Completion,
     SegmentTooSmallError,
     check_segment,
     complete_points,
     confidence_figures,
 )
-from ..processes import ProcessPool
-from ..reconstruct import fast_mesh
+from ..completion.reconstruct import fast_mesh
+from ..grasp.robust import sample_meshes
+from ..perception.camera import Intrinsics
+from ..perception.capture import Capture, CaptureError, load_capture
+from ..runtime.processes import ProcessPool
 from . import panel as P
 from . import sources
 from .audience import Audience
@@ -587,7 +587,7 @@ class Session:
         read-only) and replace the shown scene with it (raises, leaving the old scene, on failure).
 
         ``require_segment``: see :func:`~.state.load_scene`. Returns a note for the user when the
-        capture was decimated (see :func:`~shapeviewer.capture.decimate`), else None.
+        capture was decimated (see :func:`~shapeviewer.perception.capture.decimate`), else None.
         """
         scene = source if isinstance(source, LoadedScene) else self.res.pool.run(load_scene, source, require_segment)
         capture = scene.capture

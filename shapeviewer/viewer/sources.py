@@ -2,7 +2,7 @@
 with ``--data-dir``) capture files of one server folder. Plain functions, no viser: they check and
 read bytes and paths; the app shows what they say.
 
-Points of the captures they return are camera optical frame, metres (:mod:`shapeviewer.capture`).
+Points of the captures they return are camera optical frame, metres (:mod:`shapeviewer.perception.capture`).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from ..camera import Intrinsics
-from ..capture import CLOUD_SUFFIXES, DEPTH_SUFFIXES, Capture, CaptureError, load_capture, npy_holds_points
+from ..perception.camera import Intrinsics
+from ..perception.capture import CLOUD_SUFFIXES, DEPTH_SUFFIXES, Capture, CaptureError, load_capture, npy_holds_points
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ def upload_problem(shown: str, size: int, max_bytes: int) -> str | None:
 
 def read_upload(shown: str, content: bytes, intrinsics: Intrinsics | None) -> tuple[Capture, str | None]:
     """Parse an upload's bytes from a private temporary file (removed afterwards), as
-    :func:`~shapeviewer.capture.load_capture` reads files. Messages name ``shown``, never the
+    :func:`~shapeviewer.perception.capture.load_capture` reads files. Messages name ``shown``, never the
     server's file. Returns the capture and, for a depth image read without ``intrinsics``, a note
     saying which intrinsics were assumed."""
     suffix = Path(shown).suffix.lower()

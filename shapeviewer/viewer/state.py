@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..baselines import hull_mesh, mirror_mesh, partial_mesh
-from ..camera import transform_points
-from ..capture import MAX_CAPTURE_POINTS, Capture, decimate
-from ..pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
-from ..segment import Segment, Segmentation, segment_scene, world_frame
+from ..completion.baselines import hull_mesh, mirror_mesh, partial_mesh
+from ..completion.pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
+from ..perception.camera import transform_points
+from ..perception.capture import MAX_CAPTURE_POINTS, Capture, decimate
+from ..perception.segment import Segment, Segmentation, segment_scene, world_frame
 
 # The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
 MESH_KINDS = ("fast", "detailed", "envelope", "partial", "mirror", "hull")
@@ -39,7 +39,7 @@ class LoadedScene:
         capture: the capture (camera-frame points).
         segmentation: ``segment_scene(capture)``.
         T_world_cam: 4x4 camera pose in the world frame the viewer draws in.
-        frame_note: where that world frame comes from (see :func:`~shapeviewer.segment.world_frame`).
+        frame_note: where that world frame comes from (see :func:`~shapeviewer.perception.segment.world_frame`).
         seg_seconds: wall time of the segmentation.
         segments: segment id -> segment.
         points_world: segment id -> its finite points in world metres (for picking).
@@ -105,7 +105,7 @@ def usable(segment: Segment) -> bool:
 
 
 def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
-    """Decimate (see :func:`~shapeviewer.capture.decimate`) and segment ``capture``, in its world frame.
+    """Decimate (see :func:`~shapeviewer.perception.capture.decimate`) and segment ``capture``, in its world frame.
 
     ``require_segment``: raise ValueError for a capture without a segment that can be completed,
     so that the viewer can keep the user's scene rather than replace it with an empty one.

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..camera import transform_points
-from ..voxel import GridFrame
+from ..completion.voxel import GridFrame
+from ..perception.camera import transform_points
 
 
 def depth_colors(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:

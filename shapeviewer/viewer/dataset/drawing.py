@@ -19,9 +19,9 @@ import numpy as np
 import trimesh
 import viser
 
-from ...camera import Intrinsics, transform_points
 from ...evaluation.results import ResultsStore, read_mesh, read_points
 from ...evaluation.summaries import GraspSummary, ViewInfo
+from ...perception.camera import Intrinsics, transform_points
 from ..audience import Audience
 from .layout import DEFAULT_ASPECT, ViewLayout
 from .summary import COLORS

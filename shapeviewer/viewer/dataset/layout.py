@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...camera import transform_points
+from ...perception.camera import transform_points
 
 # Column spacing / largest object footprint: room for the labels between the items.
 SPACING_FACTOR = 1.3

@@ -120,7 +120,7 @@ class SampleBuild:
 
     def start(self, root: Path, weights, completer) -> None:
         """Build the sample store in ``root`` with ``completer`` (a
-        :class:`~shapeviewer.model.Completer`) loaded from ``weights``, in a daemon thread."""
+        :class:`~shapeviewer.completion.model.Completer`) loaded from ``weights``, in a daemon thread."""
         self.running = True
         threading.Thread(target=self._run, args=(root, weights, completer), name="sample-store", daemon=True).start()
 

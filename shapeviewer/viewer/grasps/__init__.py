@@ -3,7 +3,7 @@ hands, execute them on the true object of a synthetic scene, rank them by how ma
 completion's sample completions they hold on (issue 14), export them.
 
 Frames: everything here is in the viewer's WORLD frame (metres, z up, table top z = 0). A segment's
-mesh (camera frame on its :class:`~shapeviewer.pipeline.Completion`) is mapped with
+mesh (camera frame on its :class:`~shapeviewer.completion.pipeline.Completion`) is mapped with
 ``scene.T_world_cam`` before planning; a grasp's ``T_world_palm`` places the palm frame, in which
 :func:`~.drawing.hand_solids` gives the hand's palm and fingers.
 

@@ -27,7 +27,7 @@ from ...grasp.robust import (
     robustness,
 )
 from ...grasp.serialize import grasps_to_json, scene_zip
-from ...processes import ProcessPool
+from ...runtime.processes import ProcessPool
 from ..audience import Audience
 from ..gui import set_value
 from ..jobs import Notify, send_download

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
-from ...camera import transform_points
 from ...grasp.hands import Hand, get_hand
+from ...perception.camera import transform_points
 from ..audience import Audience
 from ..rays import first_hit, sample_segments
 from ..visuals import shade

@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from ...camera import transform_points
-from ...capture import Capture, SceneObject
 from ...grasp.execute import ExecutionResult
 from ...grasp.plan import Grasp, PlanStats
 from ...grasp.robust import Robustness
-from ...segment import Segment
+from ...perception.camera import transform_points
+from ...perception.capture import Capture, SceneObject
+from ...perception.segment import Segment
 
 MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share of its labelled points are
 

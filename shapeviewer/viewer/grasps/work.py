@@ -1,7 +1,7 @@
 """Running a session's grasp jobs: one at a time, each in a background thread, outside the
 session's job queue (:class:`~..jobs.JobQueue`), so the rest of the viewer keeps working meanwhile.
 Planning, executing and ranking are the heaviest jobs there are and hold the GIL for seconds, so
-they compute in worker processes (:class:`~shapeviewer.processes.ProcessPool`) shared by every session: other
+they compute in worker processes (:class:`~shapeviewer.runtime.processes.ProcessPool`) shared by every session: other
 users' clicks keep the server's interpreter and the main pool's workers.
 """
 
@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 import numpy as np
 import viser
 
-from ...processes import JobCancelled, ProcessPool
+from ...runtime.processes import JobCancelled, ProcessPool
 from ..gui import set_value
 from ..jobs import READY, Notify
 from .controls import GraspPanel

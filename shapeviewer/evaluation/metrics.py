@@ -21,8 +21,8 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 from scipy.spatial import cKDTree
 
-from .geometry import o3d_tensor, raycasting_scene
-from .voxel import GridFrame, points_to_grid, surface_samples
+from ..completion.voxel import GridFrame, points_to_grid, surface_samples
+from ..geometry import o3d_tensor, raycasting_scene
 
 # Geodesic divergence constants from the authors' geodesic_comparison code.
 _GEODESIC_NEIGHBOURS = 5

@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 from skimage import measure
 
-from .geometry import concatenate_meshes
+from ..geometry import concatenate_meshes
 from .voxel import GridFrame, below_plane, seen_free
 
 # A network trained on Y marks its output grid at p > 0.5 (the paper's, scored against Y at

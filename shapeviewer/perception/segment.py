@@ -286,7 +286,7 @@ def isolate(
     camera did not see), without their :func:`flying_pixels`. Non-finite points are never kept. When
     this leaves fewer than a tenth of the finite points, every finite point is kept instead (a flat
     object, such as a plate, lies almost wholly in the band)."""
-    from .voxel import unit_plane
+    from ..completion.voxel import unit_plane
 
     pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
     finite = np.asarray(np.isfinite(pts).all(axis=1))
@@ -371,7 +371,7 @@ def points_on_table(
         ValueError: fewer than 10 finite points, too few for ``fitting`` (named in the message), or a
             malformed plane.
     """
-    from .voxel import unit_plane
+    from ..completion.voxel import unit_plane
 
     n, d = unit_plane(support_plane)
     T = table_frame(np.r_[n, d])

@@ -7,7 +7,7 @@ the vertical axis is fitted to the observed points and the network's answer is r
 every voxel, the answer's 75th percentile over the angles about the axis at the voxel's radius and
 height, where it is larger than the answer itself.
 
-:func:`shapeviewer.pipeline.complete_points` does this for every segment on a table whose axis is
+:func:`shapeviewer.completion.pipeline.complete_points` does this for every segment on a table whose axis is
 :attr:`RevolutionAxis.accepted` (points seen all round one side, at one radius per height within
 depth noise); what only looks revolved from one side (a banana's arc, a box, a pitcher's handle) is
 left as the network answered. All coordinates are metres; frames are named where they are used.
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .camera import transform_points
-from .segment import points_on_table
+from ..perception.camera import transform_points
+from ..perception.segment import points_on_table
 from .voxel import GridFrame
 
 BIN_HEIGHT = 0.005  # metres: the observed points' radius is compared within height bins this tall
@@ -47,7 +47,7 @@ class RevolutionAxis:
 
     Attributes:
         T_table_cam: 4x4 transform, camera frame -> table frame (metres; the table at z = 0, z up:
-            :func:`~shapeviewer.segment.table_frame`).
+            :func:`~shapeviewer.perception.segment.table_frame`).
         centre: (2,) the axis's x, y in the table frame, metres.
         residual: median distance of the observed points' radius from their height bin's mean, metres.
         radius: mean distance of the observed points from the axis, metres.
@@ -148,7 +148,7 @@ def revolve(
         frame: the grid's frame (grid coordinates <-> camera metres).
         axis: the fitted axis (:func:`fit_axis`).
         free: (40, 40, 40) bool voxels known to be empty (the camera saw through them,
-            :func:`~shapeviewer.voxel.context_grids`); they keep their answer.
+            :func:`~shapeviewer.completion.voxel.context_grids`); they keep their answer.
         percentile, n_angles: the profile at a radius and height is this percentile of the answer
             (trilinear) at ``n_angles`` angles about the axis, over the angles whose point lies inside
             the grid.

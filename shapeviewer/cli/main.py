@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_parser import build_parser
+from .parser import build_parser
 
 
 def _intrinsics(args, shape=None):
-    from .camera import Intrinsics
+    from ..perception.camera import Intrinsics
 
     if all(getattr(args, k) is None for k in ("fx", "fy", "cx", "cy")):
         return None
@@ -36,12 +36,12 @@ def _intrinsics(args, shape=None):
 
 
 def load_input(spec: str, seed: int = 0, intrinsics=None):
-    """A :class:`~shapeviewer.capture.Capture` from ``default`` (the generated scene) or a file path."""
+    """A :class:`~shapeviewer.perception.capture.Capture` from ``default`` (the generated scene) or a file path."""
     if spec == "default":
-        from .sim.demo_scene import default_scene
+        from ..sim.demo_scene import default_scene
 
         return default_scene(seed)
-    from .capture import load_capture
+    from ..perception.capture import load_capture
 
     return load_capture(spec, intrinsics=intrinsics)
 
@@ -74,7 +74,7 @@ def _remove_empty(folders: list[Path]) -> None:
 
 
 def cmd_serve(args) -> int:
-    from .viewer import serve
+    from ..viewer import serve
 
     try:
         serve(
@@ -95,10 +95,10 @@ def cmd_serve(args) -> int:
 
 
 def cmd_complete(args) -> int:
-    from . import export
-    from .model import load_completer
-    from .pipeline import SegmentTooSmallError, check_segment, complete_points, completion_detailed_mesh
-    from .segment import segment_scene, world_frame
+    from .. import export
+    from ..completion.model import load_completer
+    from ..completion.pipeline import SegmentTooSmallError, check_segment, complete_points, completion_detailed_mesh
+    from ..perception.segment import segment_scene, world_frame
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -218,12 +218,12 @@ def _write_sample_meshes(c, samples: np.ndarray, stem: Path, fmt: str, frame: st
     """Write the fast mesh of each of ``samples``, the first of completion ``c``'s sample
     completions (``<stem>_sample_<k>.<fmt>``); returns the report entry: the files (None for an
     empty sample) and the viewer's confidence figures over them
-    (:func:`~shapeviewer.pipeline.confidence_figures`): the mean spread on the seen and the unseen
+    (:func:`~shapeviewer.completion.pipeline.confidence_figures`): the mean spread on the seen and the unseen
     side, and the share of completed voxels that are a guess."""
-    from . import export
-    from .model import sample_spread
-    from .pipeline import confidence_figures
-    from .reconstruct import fast_mesh
+    from .. import export
+    from ..completion.model import sample_spread
+    from ..completion.pipeline import confidence_figures
+    from ..completion.reconstruct import fast_mesh
 
     files: list[str | None] = []
     for k, probabilities in enumerate(samples):
@@ -247,7 +247,7 @@ def cmd_grasp(args) -> int:
         raise CLIError(f"--out {out}: the folder {out.parent} does not exist")
     if args.budget is not None and not args.budget > 0:
         raise CLIError(f"--budget must be a positive number of seconds, got {args.budget}")
-    from .grasp.serialize import plan_mesh_file
+    from ..grasp.serialize import plan_mesh_file
 
     grasps = plan_mesh_file(
         args.mesh,
@@ -265,7 +265,7 @@ def cmd_grasp(args) -> int:
 
 
 def cmd_objects(args) -> int:
-    from .sim import catalogue
+    from ..sim import catalogue
 
     if args.write_index:
         catalogue.catalogue.cache_clear()
@@ -294,7 +294,7 @@ def cmd_objects(args) -> int:
 
 
 def cmd_generate(args) -> int:
-    from .generate import GenerationConfig, generate
+    from ..training.generate import GenerationConfig, generate
 
     r = generate(
         args.out,
@@ -317,7 +317,7 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from .train import TrainConfig, train
+    from ..training.train import TrainConfig, train
 
     cfg = TrainConfig(
         arch=args.arch,
@@ -339,7 +339,7 @@ def cmd_train(args) -> int:
 
 
 def cmd_average(args) -> int:
-    from .train import average_weights
+    from ..training.train import average_weights
 
     average_weights(args.weights, args.out, note=args.note)
     print(f"mean of {len(args.weights)} weights files -> {args.out}")
@@ -347,8 +347,8 @@ def cmd_average(args) -> int:
 
 
 def cmd_evaluate_grids(args) -> int:
-    from .model import load_completer
-    from .train import check_placement, evaluate_grids, load_grid_sets
+    from ..completion.model import load_completer
+    from ..training.train import check_placement, evaluate_grids, load_grid_sets
 
     completer = load_completer(args.weights)
     check_placement(completer, args.data)
@@ -356,7 +356,7 @@ def cmd_evaluate_grids(args) -> int:
     if args.kinds:
         import numpy as np
 
-        from .sim.catalogue import shape_kind
+        from ..sim.catalogue import shape_kind
 
         sets = {
             s: gs.subset(np.flatnonzero([shape_kind(str(o)) in args.kinds for o in gs.objects]))
@@ -384,7 +384,7 @@ def cmd_evaluate_grids(args) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(r, indent=1))
     if args.card:
-        from .train import model_card
+        from ..training.train import model_card
 
         Path(args.card).write_text(model_card(completer, r, args.data))
         print(f"model card -> {args.card}")
@@ -392,7 +392,7 @@ def cmd_evaluate_grids(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluation.run import GRASP_METHODS, GraspOptions, evaluate
+    from ..evaluation.run import GRASP_METHODS, GraspOptions, evaluate
 
     grasps = None
     if args.grasps:
@@ -456,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command. Failures are one line on stderr and exit code 2 (1 for an unexpected error,
     with its traceback under ``-v``); Ctrl-C stops any command within seconds (exit code 130,
     no child process left: :mod:`.interrupt`). A folder the command created and left empty is removed."""
-    from .interrupt import interrupt_watch, interrupted, kill_descendants
+    from ..runtime.interrupt import interrupt_watch, interrupted, kill_descendants
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(

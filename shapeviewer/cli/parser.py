@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 
-from .backends import BACKENDS
+from ..runtime.backends import BACKENDS
 
 
 def _add_input_args(p: argparse.ArgumentParser) -> None:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from .geometry import o3d_tensor, raycasting_scene
+from ..geometry import o3d_tensor, raycasting_scene
 
 GRID_DIM = 40
 GRID_SPAN = 32
@@ -102,7 +102,7 @@ def frame_for_points(points_cam: np.ndarray, *, depth_shift: float = 0.0) -> Gri
     most tabletop views (``benchmarks/grid_room.py``), so a network can be trained with the
     object moved up to ``depth_shift`` voxels towards the camera instead; the front of the
     visible box stays at least ``FRONT_MARGIN`` voxels inside the grid. A network's placement is
-    in its weights (:attr:`shapeviewer.model.Completer.depth_shift`); inference must use it.
+    in its weights (:attr:`shapeviewer.completion.model.Completer.depth_shift`); inference must use it.
     """
     pts = _finite_points(points_cam)
     lo, hi = pts.min(axis=0), pts.max(axis=0)

@@ -37,13 +37,13 @@ class Completion:
         grid_in: (40, 40, 40) bool CNN input, [x, y, z].
         frame: the grid frame (grid coordinates <-> camera metres).
         context: (2, 40, 40, 40) bool known-empty space (seen free, under the table), [x, y, z]
-            (:func:`~shapeviewer.voxel.context_grids`); the CNN output is 0 there.
+            (:func:`~shapeviewer.completion.voxel.context_grids`); the CNN output is 0 there.
         support_plane: the table ``(a, b, c, d)`` in the camera frame, or None.
         probabilities: (40, 40, 40) float32 CNN output: the mean of its ``samples``, the network's
             answers for the 8 mirrored views (test-time augmentation: averaging removes part of each
             answer's error; the model card has the figures).
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
-        samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.model.Completer.predict_samples`),
+        samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.completion.model.Completer.predict_samples`),
             the answers the output averages; their per-voxel disagreement (:attr:`spread`) is the
             completion's uncertainty.
         detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
@@ -52,16 +52,16 @@ class Completion:
         partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
             once computed.
         timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
-            ``detailed_steps`` is the dict :func:`~shapeviewer.reconstruct.detailed_mesh` fills).
+            ``detailed_steps`` is the dict :func:`~shapeviewer.completion.reconstruct.detailed_mesh` fills).
         error: why a mesh is missing, if it is.
         mesh_level: the probability its meshes are taken at (the network's
-            :attr:`~shapeviewer.model.Completer.mesh_level`).
+            :attr:`~shapeviewer.completion.model.Completer.mesh_level`).
         grid_level: the probability above which a voxel is in :attr:`grid_out` (the network's
-            :attr:`~shapeviewer.model.Completer.grid_level`).
-        axis: the vertical axis fitted to the segment on the table (:func:`~shapeviewer.revolve.fit_axis`),
+            :attr:`~shapeviewer.completion.model.Completer.grid_level`).
+        axis: the vertical axis fitted to the segment on the table (:func:`~shapeviewer.completion.revolve.fit_axis`),
             or None (no table, or not asked for); when it is accepted the samples, and so the
             output, are the network's answers revolved about it (:attr:`revolved`).
-        cuboid: the box fitted to the segment on the table (:func:`~shapeviewer.cuboid.fit_cuboid`), or
+        cuboid: the box fitted to the segment on the table (:func:`~shapeviewer.completion.cuboid.fit_cuboid`), or
             None (no table, or not asked for); when it is accepted the samples, and so the output, are
             its occupancy (:attr:`boxed`).
     """
@@ -88,12 +88,12 @@ class Completion:
 
     @property
     def boxed(self) -> bool:
-        """Whether the completion is the box fitted to the points (:mod:`shapeviewer.cuboid`)."""
+        """Whether the completion is the box fitted to the points (:mod:`shapeviewer.completion.cuboid`)."""
         return self.cuboid is not None and self.cuboid.accepted
 
     @property
     def revolved(self) -> bool:
-        """Whether the answers were revolved about the table's normal (:mod:`shapeviewer.revolve`)."""
+        """Whether the answers were revolved about the table's normal (:mod:`shapeviewer.completion.revolve`)."""
         return self.axis is not None and self.axis.accepted
 
     @property
@@ -115,7 +115,7 @@ class Completion:
         return self.probabilities > self.mesh_level
 
     def require_fast_mesh(self) -> trimesh.Trimesh:
-        """The fast mesh, or :class:`~shapeviewer.reconstruct.EmptyCompletionError` saying why there is none."""
+        """The fast mesh, or :class:`~.reconstruct.EmptyCompletionError` saying why there is none."""
         if self.fast_mesh is None:
             from .reconstruct import EmptyCompletionError
 
@@ -125,7 +125,7 @@ class Completion:
     @property
     def spread(self) -> np.ndarray:
         """(40, 40, 40) float32 per-voxel disagreement of the ``samples`` (the uncertainty,
-        :func:`~shapeviewer.model.sample_spread`)."""
+        :func:`~shapeviewer.completion.model.sample_spread`)."""
         return sample_spread(self.samples)
 
 
@@ -140,7 +140,7 @@ def confidence_figures(
 
     A completed voxel is on the ``seen`` side when it is occupied in the CNN input or next to an
     occupied input voxel, else ``unseen`` (sides without voxels are left out); ``spread`` is the
-    per-voxel disagreement of sample completions (:func:`~shapeviewer.model.sample_spread`),
+    per-voxel disagreement of sample completions (:func:`~shapeviewer.completion.model.sample_spread`),
     ``grid_in`` / ``solid`` (the completed voxels, :attr:`Completion.solid`) boolean grids of the
     same shape. A guessed voxel is a completed one with a spread above :data:`GUESS_SPREAD`.
     """
@@ -187,22 +187,22 @@ def complete_points(
     fit_boxes: bool = True,
 ) -> list[Completion]:
     """Fast-complete several segments (camera-frame points, metres): one batched CNN call, the 8
-    mirrored views of every segment (:meth:`~shapeviewer.model.Completer.predict_samples`).
+    mirrored views of every segment (:meth:`~shapeviewer.completion.model.Completer.predict_samples`).
 
     ``support_plane``: the table ``(a, b, c, d)`` in the camera frame (normal towards the camera),
     or None. With the seen free space of each segment it is the CNN's context, and nothing is
     completed where the camera saw through or under the table.
 
     ``revolve_answers``: on a table, a segment whose points look like a surface of revolution about
-    the table's normal (a bowl, cup, can or jar: :attr:`~shapeviewer.revolve.RevolutionAxis.accepted`)
-    has each of its answers revolved about that axis (:func:`~shapeviewer.revolve.revolve`), which
+    the table's normal (a bowl, cup, can or jar: :attr:`~shapeviewer.completion.revolve.RevolutionAxis.accepted`)
+    has each of its answers revolved about that axis (:func:`~shapeviewer.completion.revolve.revolve`), which
     gives the far side the near side's shape; the seen free space stays empty. Off by default: it
     closes upside-down bowls and cups' far walls but fattens cans and fruit, and over 500 tabletop
     views it moves neither the meshes nor the grasps (model card, "Session 33").
 
     ``fit_boxes``: on a table, a segment whose points fill a rectangle on the table, lie on the faces
-    of a box within depth noise and face along its edges (:attr:`~shapeviewer.cuboid.Cuboid.accepted`)
-    is completed as that box (:func:`~shapeviewer.cuboid.occupancy` in place of every answer): the
+    of a box within depth noise and face along its edges (:attr:`~shapeviewer.completion.cuboid.Cuboid.accepted`)
+    is completed as that box (:func:`~shapeviewer.completion.cuboid.occupancy` in place of every answer): the
     network's boxes are about 10 mm too large along every edge. On by default: over 500 tabletop
     views it takes 12 boxes and nothing else, brings 11 of them closer to the truth and lifts 4 more
     of them with the robust grasp (model card, "Session 34").
@@ -311,7 +311,7 @@ def complete(
     """
     if mode not in ("fast", "detailed"):
         raise ValueError(f"mode must be 'fast' or 'detailed', got {mode!r}")
-    from .segment import isolate
+    from ..perception.segment import isolate
 
     completer = completer or _shipped_completer()
     pts = check_segment(points_cam)

@@ -32,11 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import DepthNoise, Intrinsics, KinectNoise, RaycastRenderer, backproject_valid
-from .fileio import atomic_write
-from .geometry import raycasting_scene
-from .sim import catalogue
-from .voxel import (
+from ..completion.voxel import (
     GRID_DIM,
     GridFrame,
     context_grids,
@@ -46,6 +42,11 @@ from .voxel import (
     solid_grid,
     surface_samples,
 )
+from ..fileio import atomic_write
+from ..geometry import raycasting_scene
+from ..perception.camera import Intrinsics, backproject_valid
+from ..sim import catalogue
+from ..sim.sensor import DepthNoise, KinectNoise, RaycastRenderer
 
 log = logging.getLogger(__name__)
 
@@ -261,7 +262,7 @@ def _tabletop_examples(name: str, config: GenerationConfig):
     """Tabletop views (:func:`tabletop.render_tabletop_view`), ``config.views`` of them (default 32)."""
     from scipy import ndimage
 
-    from .sim.tabletop import render_tabletop_view
+    from ..sim.tabletop import render_tabletop_view
 
     mesh = catalogue.centred_mesh(name)
     scene = raycasting_scene(mesh)
@@ -326,7 +327,7 @@ def generate(
     if backend == "ray":
         import ray
 
-        from .backends import ray_init
+        from ..runtime.backends import ray_init
 
         ray_init(workers)
         remote = ray.remote(_task)

@@ -1,7 +1,7 @@
 """Training the completion CNN (paper Sec. IV-A, SPEC §3): Adam, binary cross-entropy, batch 32
 drawn with replacement, Jaccard on Training Views, Holdout Views and Holdout Models (paper Fig. 4).
 
-Data: the shards written by :mod:`shapeviewer.generate`. Views of training models are split into
+Data: the shards written by :mod:`shapeviewer.training.generate`. Views of training models are split into
 training views and holdout views by :func:`shapeviewer.sim.catalogue.view_split`; only training views
 are trained on.
 
@@ -27,11 +27,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .fileio import atomic_write
+from ..completion.model import build, default_device, network_input, save_weights
+from ..completion.voxel import FRONT_MARGIN, GRID_DIM
+from ..fileio import atomic_write
+from ..sim import catalogue
 from .generate import folder_depth_shift, shard_files
-from .model import build, default_device, network_input, save_weights
-from .sim import catalogue
-from .voxel import FRONT_MARGIN, GRID_DIM
 
 log = logging.getLogger(__name__)
 
@@ -169,7 +169,7 @@ def data_depth_shift(data_dirs: Sequence[str | Path]) -> float:
 
 def check_placement(completer, data_dirs: Sequence[str | Path]) -> None:
     """Raise a ValueError that says what to run if the data folders' grid placement is not the
-    network's (:attr:`~shapeviewer.model.Completer.depth_shift`): its scores there would mean nothing."""
+    network's (:attr:`~shapeviewer.completion.model.Completer.depth_shift`): its scores there would mean nothing."""
     shift = data_depth_shift(data_dirs)
     if shift != completer.depth_shift:
         raise ValueError(
@@ -251,16 +251,16 @@ def evaluate_grids(
     the ground truth of ``label`` (:meth:`GridSet.truth`: ``solid``, the paper's Y, or the label a
     network was trained on), and the network's per shape kind (``by_kind``: kind -> {"jaccard",
     "views"}, :func:`catalogue.shape_kind`). The paper's metric is ``label="solid"`` at the
-    network's :attr:`~shapeviewer.model.Completer.grid_level`; training scores its own label at 0.5.
+    network's :attr:`~shapeviewer.completion.model.Completer.grid_level`; training scores its own label at 0.5.
 
     ``samples``: 1 scores the network's answer for the view as seen
-    (:meth:`~shapeviewer.model.Completer.predict`, what training watches); n > 1 the mean of its
-    answers for the first n mirrored views (:meth:`~shapeviewer.model.Completer.predict_samples`; 8
-    is the app's output grid, :attr:`~shapeviewer.pipeline.Completion.probabilities`).
+    (:meth:`~shapeviewer.completion.model.Completer.predict`, what training watches); n > 1 the mean of its
+    answers for the first n mirrored views (:meth:`~shapeviewer.completion.model.Completer.predict_samples`; 8
+    is the app's output grid, :attr:`~shapeviewer.completion.pipeline.Completion.probabilities`).
 
     Uses a seeded sample of at most ``max_views`` views per set.
     """
-    from .model import Completer
+    from ..completion.model import Completer
 
     completer = net_or_completer
     if not isinstance(completer, Completer):  # a network being trained: its own device, no pre-packing

@@ -5,7 +5,7 @@ on the table, and a camera above the table sees its whole top face: the observed
 true extents (within 5 mm on the tabletop views), while the network's completion of a box is larger
 along every axis (3-29 mm, median about 10 mm; model card, "Session 32"). Here the cuboid is fitted
 to the points and, when they look like one (:attr:`Cuboid.accepted`), its occupancy replaces the
-network's answers (:func:`shapeviewer.pipeline.complete_points`).
+network's answers (:func:`shapeviewer.completion.pipeline.complete_points`).
 
 All coordinates are metres; frames are named where they are used.
 """
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .camera import transform_points
-from .segment import points_on_table
+from ..perception.camera import transform_points
+from ..perception.segment import points_on_table
 from .voxel import GridFrame
 
 EXTENT_PERCENTILE = 0.5  # the box spans the points' 0.5th to 99.5th percentile along each edge,
@@ -48,7 +48,7 @@ class Cuboid:
 
     Attributes:
         T_table_cam: 4x4 transform, camera frame -> table frame (metres; the table at z = 0, z up:
-            :func:`~shapeviewer.segment.table_frame`).
+            :func:`~shapeviewer.perception.segment.table_frame`).
         centre: (2,) the footprint's centre, x, y in the table frame, metres.
         yaw: the angle of the box's first edge from the table frame's x axis, radians.
         extents: (3,) the edge lengths, metres: along ``yaw``, across it, and the height above the table.

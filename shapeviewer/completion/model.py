@@ -1,7 +1,7 @@
 """The shape completion CNN (paper Fig. 3; SPEC §3) and a compact network that trains on a CPU.
 
 Both map a (B, 1, 40, 40, 40) occupancy grid (indexed [x, y, z] in the camera frame, placement of
-:mod:`shapeviewer.voxel`) to per-voxel occupancy probabilities of the same shape.
+:mod:`shapeviewer.completion.voxel`) to per-voxel occupancy probabilities of the same shape.
 
 * ``varley2017``: the paper's exact network, three 4^3 convolutions, two max-pools, dense 5,000,
   dense 64,000 with sigmoid; about 430 million parameters (1.7 GB of float32).
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .fileio import atomic_write
+from ..fileio import atomic_write
 from .reconstruct import MESH_LEVEL
 from .voxel import GRID_DIM
 
@@ -88,7 +88,7 @@ class UNet3D(nn.Module):
     """A compact 3D U-Net working at 20^3 -> 10^3 -> 5^3 and back, with skip connections.
 
     Input channel 0 is the observed occupancy; with ``in_channels`` 3, channels 1-2 are the context
-    of :func:`~shapeviewer.voxel.context_grids` (seen free space, under the support plane).
+    of :func:`~shapeviewer.completion.voxel.context_grids` (seen free space, under the support plane).
     The 40^3 input is folded into 8 channels per input channel at 20^3 (space-to-depth) and the
     output unfolded the same way, so no convolution runs at full resolution: that is what makes it fast on a CPU.
     The skips carry the observed surface; the 5^3 bottleneck's receptive field covers the whole
@@ -237,7 +237,7 @@ class Completer:
         Args:
             grids: the observed occupancy, [x, y, z] in the paper's placement.
             context: optional (2,40,40,40) or (B,2,40,40,40) bool grids of known-empty space
-                (:func:`~shapeviewer.voxel.context_grids`). A context-aware network reads them;
+                (:func:`~shapeviewer.completion.voxel.context_grids`). A context-aware network reads them;
                 either way those voxels are known to be empty, so their probability is set to 0.
         """
         grids = np.asarray(grids)

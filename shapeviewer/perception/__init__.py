@@ -1,0 +1,1 @@
+"""Perception: captures from depth sensors and files, their segments on the support plane."""

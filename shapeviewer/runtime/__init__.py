@@ -1,0 +1,1 @@
+"""Runtime infrastructure: worker processes, cluster backends, interrupts and progress."""

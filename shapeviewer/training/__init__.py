@@ -1,0 +1,1 @@
+"""Training: data generation from catalogue objects and the CNN's training protocol."""
