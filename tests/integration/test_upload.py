@@ -20,7 +20,7 @@ from shapeviewer.viewer.sources import read_upload
 
 from helpers import browser_page, browser_session, free_port, headless_session, needs_browser, node, wait_until
 
-CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
+CAPTURES = Path(__file__).resolve().parents[2] / "static_assets" / "captures"
 MILK = CAPTURES / "milk_cartoon_all_small_clorox.pcd"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
 

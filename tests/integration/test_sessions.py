@@ -13,7 +13,7 @@ import pytest
 
 from helpers import CHROMIUM, CHROMIUM_ARGS, free_port, job_running, needs_browser, node, sync_playwright, wait_until
 
-CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
+CAPTURES = Path(__file__).resolve().parents[2] / "static_assets" / "captures"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
 
 

@@ -16,7 +16,7 @@ import trimesh
 
 import shapeviewer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 SCRIPTS = sorted(p.name for p in EXAMPLES.glob("*.py"))
 TIMEOUT = 180  # seconds; each example takes 10-20 s on 2 idle cores

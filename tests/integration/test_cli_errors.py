@@ -24,7 +24,7 @@ from shapeviewer.runtime.interrupt import alive, descendants
 
 from helpers import free_port
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MUG = ROOT / "static_assets" / "captures" / "table_scene_mug_stereo_textured.pcd"
 LIMIT = 30.0  # seconds any bad-input case may take
 # Seconds after which a Ctrl-C counts as hung. The 3 s target is measured by benchmarks/load.py,

@@ -183,7 +183,7 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
     from shapeviewer.cli.main import main
     from shapeviewer.completion.model import sample_spread
 
-    capture = Path(__file__).resolve().parents[1] / "static_assets/captures/table_scene_mug_stereo_textured.pcd"
+    capture = Path(__file__).resolve().parents[2] / "static_assets/captures/table_scene_mug_stereo_textured.pcd"
     out = tmp_path / "out"
     assert main(["complete", str(capture), "--out", str(out), "--samples", "4", "--frame", "camera"]) == 0
     report = json.loads((out / "report.json").read_text())

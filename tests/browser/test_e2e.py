@@ -61,7 +61,7 @@ from store_factory import VIEWS, make_store
 
 pytestmark = [pytest.mark.browser, needs_browser]
 
-CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
+CAPTURES = Path(__file__).resolve().parents[2] / "static_assets" / "captures"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"  # a real capture shipped in the repository
 N_GRASPS = 3  # a short plan: the walk is about the path, not the planner
 SEED = 0  # the generated tabletop the app opens on, and "New scene" makes again

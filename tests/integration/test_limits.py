@@ -23,7 +23,7 @@ from shapeviewer.perception.segment import segment_scene
 
 from helpers import free_port, headless_session
 
-CAPTURES = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
+CAPTURES = Path(__file__).resolve().parents[2] / "static_assets" / "captures"
 MILK = CAPTURES / "milk_cartoon_all_small_clorox.pcd"
 MUG = CAPTURES / "table_scene_mug_stereo_textured.pcd"
 
