@@ -2,7 +2,7 @@
 traceback, within 30 s; no child process and no empty ``--out`` folder left behind; every V-HACD run
 and wait bounded; the V-HACD cache bounded.
 
-Commands run as subprocesses (``python -m shapeviewer.cli.main``) with a private cache folder.
+Commands run as subprocesses (``python -m shapeviewer``) with a private cache folder.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def env(tmp_path: Path) -> dict[str, str]:
 def run_cli(args: list, env: dict, cwd: Path, timeout: float = LIMIT) -> subprocess.CompletedProcess:
     t0 = time.monotonic()
     out = subprocess.run(
-        [sys.executable, "-m", "shapeviewer.cli.main", *map(str, args)],
+        [sys.executable, "-m", "shapeviewer", *map(str, args)],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -130,7 +130,7 @@ def test_grasp_on_an_open_mesh_warns(tmp_path, env):
 
 HANGING_VHACD = textwrap.dedent("""
     import sys
-    from shapeviewer import cli
+    from shapeviewer.cli import main as cli
     cli._import_pybullet_quietly()
     from shapeviewer.grasp import world
     world._VHACD_CHILD = "import time; time.sleep(600)"  # a V-HACD that never returns

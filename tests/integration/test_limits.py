@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from shapeviewer import capture as capture_module
-from shapeviewer import segment as segment_module
+from shapeviewer.perception import capture as capture_module
+from shapeviewer.perception import segment as segment_module
 from shapeviewer.perception.camera import Intrinsics, backproject
 from shapeviewer.perception.capture import MAX_CAPTURE_POINTS, CaptureError, decimate, fit_intrinsics, load_capture
 from shapeviewer.perception.segment import segment_scene

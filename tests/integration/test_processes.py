@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from shapeviewer import processes
+from shapeviewer.runtime import processes
 from shapeviewer.runtime.interrupt import alive
 from shapeviewer.runtime.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
 
