@@ -30,7 +30,7 @@ from .voxel import GRID_DIM
 
 log = logging.getLogger(__name__)
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "static_assets" / "weights" / "unet3d.pt"
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "static_assets" / "weights" / "unet3d.pt"
 
 
 class Varley2017(nn.Module):

@@ -298,7 +298,7 @@ def _save_mesh(cp: Path, mesh: trimesh.Trimesh) -> None:
     atomic_write(cp, buf.getvalue())
 
 
-SHIPPED_INDEX = Path(__file__).resolve().parent.parent / "static_assets" / "catalogue.json"
+SHIPPED_INDEX = Path(__file__).resolve().parents[2] / "static_assets" / "catalogue.json"
 
 
 def _source_versions() -> dict:
