@@ -21,11 +21,43 @@ import argparse
 from ..runtime.backends import BACKENDS
 
 
+def _number(kind: type, low: float | None = None, high: float | None = None, *, above: bool = False):
+    """An argparse ``type`` that parses ``kind`` and refuses values outside [low, high] (``above``:
+    strictly greater than ``low``), so a bad option stops the command before it runs, with a clear
+    message, instead of a run whose results are wrong."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a {'whole number' if kind is int else 'number'}"
+            ) from None
+        if kind is float and value != value:
+            raise argparse.ArgumentTypeError("NaN is not a valid value")
+        if low is not None and (value <= low if above else value < low):
+            raise argparse.ArgumentTypeError(f"{text} must be {'>' if above else '>='} {low:g}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"{text} must be <= {high:g}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
+
+
+COUNT = _number(int, 1)  # how many of something: at least one
+SEED = _number(int, 0, 2**32 - 1)  # numpy's seed range
+PORT = _number(int, 1, 65535)
+SECONDS = _number(float, 0.0, above=True)
+SHARE = _number(float, 0.0, 1.0)
+PIXELS = _number(float, 0.0, above=True)
+
+
 def _add_input_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=0, help="seed of the generated default scene")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the generated default scene")
     p.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     for k in ("fx", "fy", "cx", "cy"):
-        p.add_argument(f"--{k}", type=float, default=None, help=f"depth-image intrinsics {k} (pixels)")
+        p.add_argument(f"--{k}", type=PIXELS, default=None, help=f"depth-image intrinsics {k} (pixels)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("serve", help="start the web viewer (same as python app.py)")
     s.add_argument("--host", default="127.0.0.1", help="interface to listen on (0.0.0.0 for all)")
-    s.add_argument("--port", type=int, default=8080, help="port (the next free one is used if busy)")
+    s.add_argument("--port", type=PORT, default=8080, help="port (the next free one is used if busy)")
     s.add_argument("--cloud", default=None, help="a .pcd/.ply cloud or a depth image (.png mm / .npy m)")
     s.add_argument(
         "--results",
@@ -95,10 +127,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("grasp", help="plan grasps on a mesh file (metres, z up) and write JSON or a pybullet zip")
     s.add_argument("mesh")
     s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
-    s.add_argument("--n", type=int, default=20, help="number of distinct grasps")
+    s.add_argument("--n", type=COUNT, default=20, help="number of distinct grasps")
     s.add_argument("--out", required=True, help="grasps.json, or a .zip for the pybullet-ready scene")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--budget", type=float, default=None, help="planning time limit in seconds")
+    s.add_argument("--seed", type=SEED, default=0)
+    s.add_argument("--budget", type=SECONDS, default=None, help="planning time limit in seconds")
     s.add_argument("--no-table", action="store_true", help="plan without a table below the object")
 
     s = sub.add_parser("objects", help="list the object catalogue with split, source and size")
@@ -113,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
     s.add_argument("--out", required=True)
     s.add_argument(
-        "--views", type=int, default=None, help="views per object (default: all 726 sphere views, 32 tabletop views)"
+        "--views", type=COUNT, default=None, help="views per object (default: all 726 sphere views, 32 tabletop views)"
     )
     s.add_argument(
         "--scenes",
@@ -131,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument(
         "--noise-scale",
-        type=float,
+        type=_number(float, 0.0),
         nargs=2,
         default=(1.0, 1.0),
         metavar=("LO", "HI"),
@@ -139,32 +171,32 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--depth-shift",
-        type=float,
+        type=_number(float, 0.0),
         default=0.0,
         metavar="VOXELS",
         help="move each object up to this many voxels towards the camera in its grid, so deep objects "
         "stay inside it (default 0: the paper's placement; the shipped model uses 4)",
     )
-    s.add_argument("--workers", type=int, default=None)
+    s.add_argument("--workers", type=COUNT, default=None)
     s.add_argument("--backend", default="process", choices=BACKENDS)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=SEED, default=0)
 
     s = sub.add_parser("train", help="train (or resume) a completion CNN")
     s.add_argument("--data", required=True, nargs="+", help="one or more `generate` folders, pooled")
     s.add_argument("--run", required=True)
     s.add_argument("--arch", default="unet3d", choices=["unet3d", "varley2017"])
-    s.add_argument("--steps", type=int, default=20000)
-    s.add_argument("--batch-size", type=int, default=32)
-    s.add_argument("--lr", type=float, default=1e-4)
-    s.add_argument("--eval-every", type=int, default=500)
-    s.add_argument("--eval-views", type=int, default=200)
+    s.add_argument("--steps", type=COUNT, default=20000)
+    s.add_argument("--batch-size", type=COUNT, default=32)
+    s.add_argument("--lr", type=_number(float, 0.0, above=True), default=1e-4)
+    s.add_argument("--eval-every", type=COUNT, default=500)
+    s.add_argument("--eval-views", type=COUNT, default=200)
     s.add_argument(
         "--snapshot-every",
-        type=int,
+        type=_number(int, 0),
         default=0,
         help="keep the weights every this many steps as step_NNNNNN.pt, to average with `shapeviewer average`",
     )
-    s.add_argument("--width", type=int, default=None)
+    s.add_argument("--width", type=COUNT, default=None)
     s.add_argument(
         "--in-channels",
         type=int,
@@ -177,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--jaccard-weight",
-        type=float,
+        type=_number(float, 0.0),
         default=0.0,
         help="add this many times (1 - soft Jaccard) per example to the summed cross-entropy "
         "(0 = the paper's loss; it weighs thin-walled objects as much as large ones)",
@@ -189,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the target: solid = every voxel the object touches (the paper's Y); fraction = how much of "
         "each voxel the object fills (voxel.solid_fraction), whose 0.5 contour lies on the surface",
     )
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=SEED, default=0)
 
     s = sub.add_parser("average", help="the parameter-wise mean of weights files of one network -> a weights file")
     s.add_argument("weights", nargs="+", help="two or more weights files (.pt) of the same architecture")
@@ -199,8 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("evaluate-grids", help="Jaccard at 40^3 on the three evaluation sets")
     s.add_argument("--data", required=True, nargs="+")
     s.add_argument("--weights", default=None)
-    s.add_argument("--views", type=int, default=500)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--views", type=COUNT, default=500)
+    s.add_argument("--seed", type=SEED, default=0)
     s.add_argument("--json", default=None, help="also write the figures to this file")
     s.add_argument("--card", default=None, help="write a model card (markdown) with these figures")
     s.add_argument("--by-kind", action="store_true", help="also print the Jaccard per shape kind")
@@ -217,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("evaluate", help="the paper's completion Tables I-III (Partial, Mirror, Ours) -> results folder")
     s.add_argument("--out", required=True, help="results folder (resumable: finished views are skipped)")
-    s.add_argument("--views-per-set", type=int, default=50, help="views per evaluation set (the paper: 50)")
+    s.add_argument("--views-per-set", type=COUNT, default=50, help="views per evaluation set (the paper: 50)")
     s.add_argument(
         "--views",
         default="paper",
@@ -225,11 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="paper: the paper's three view sets of floating objects; tabletop: objects on a table "
         "among neighbours, a robot's Kinect or RealSense, segmented by the app",
     )
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=SEED, default=0)
     s.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     s.add_argument(
         "--workers",
-        type=int,
+        type=COUNT,
         default=None,
         help="processes, or with --backend ray the CPUs of a local Ray instance (default: all cores)",
     )
@@ -247,10 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
         "(saved completions are reused)",
     )
     s.add_argument("--hand", default="barrett", choices=["barrett", "panda"])
-    s.add_argument("--n-grasps", type=int, default=20, help="grasps planned per view and method (the paper: 20)")
+    s.add_argument("--n-grasps", type=COUNT, default=20, help="grasps planned per view and method (the paper: 20)")
     s.add_argument(
         "--grasp-budget",
-        type=float,
+        type=SECONDS,
         default=None,
         help="planning time limit per view and method, seconds (default: the full, deterministic search)",
     )
@@ -263,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--widen-below",
-        type=float,
+        type=SHARE,
         default=None,
         metavar="SHARE",
         help="with --robust: when the most robust grasp lifts fewer than this share of its sample tests, plan "
