@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ShapeviewerError
 from .camera import transform_points
 from .capture import Capture
 
@@ -47,6 +48,7 @@ TABLE_NOISE_SIGMAS = 3.5  # the band in the table's noise (RMS height of the poi
 TABLE_NOISE_DEPTH = 0.03  # m: points this far below the plane at most count as its noise
 TABLE_NOISE_MIN_POINTS = 20  # fewer points under the plane than this: no table in the points
 MAX_HEIGHT = 0.5  # m above the support plane
+OBJECT_RANGE = 1.5  # m from the camera: the workspace segments are kept in (segment_scene's object_range)
 # isolate: a selection of one object's points (a mask) can fall apart into clusters where a part's
 # connection is hidden or dropped at depth edges (a dumbbell's bar, a mug's handle); a cluster of
 # at least PART_SHARE of the largest one's points within PART_GAP of it is part of the object, not
@@ -85,7 +87,7 @@ PALETTE = np.array(
 )
 
 
-class SegmentationError(ValueError):
+class SegmentationError(ShapeviewerError, ValueError):
     """Input that cannot be segmented at all (malformed, empty, no finite point, bad parameters)."""
 
 
@@ -123,7 +125,7 @@ class Segmentation:
     """The result of :func:`segment_scene`.
 
     Attributes:
-        segments: the objects found, numbered left to right in the image.
+        segments: the objects found, numbered nearest first (their centroid's distance from the camera).
         plane_cam: (4,) support plane ``(a, b, c, d)`` in the camera frame, ``n . p + d = 0`` with
             unit normal ``n`` pointing to the camera's side (so ``d`` is the camera's height above
             it); None when no support plane was found.
@@ -156,6 +158,7 @@ def segment_scene(
     min_height: float | None = None,
     max_height: float = MAX_HEIGHT,
     max_range: float = 3.0,
+    object_range: float | None = OBJECT_RANGE,
     min_plane_fraction: float = 0.1,
     min_plane_extent: float = 0.4,
     ransac_iterations: int = 400,
@@ -180,6 +183,10 @@ def segment_scene(
         min_height, max_height: height band (m) above the plane kept for clustering; None:
             ``min_height`` is :func:`table_band` of the frame's points.
         max_range: points farther along z (m) are ignored.
+        object_range: segments whose centroid is farther than this from the camera (m) are dropped: a
+            robot's tabletop workspace. A plane seen to the back of a room carries the far background's
+            fragments (a few hundred points, 1.5-2.5 m away in the real captures), which are not
+            objects to complete. None keeps every segment within ``max_range``.
         min_plane_fraction: smallest share of the points a support plane must hold.
         min_plane_extent: smallest in-plane span (m, longer axis) of a support plane.
         ransac_iterations, ransac_samples: RANSAC hypotheses and the subsample they are scored on.
@@ -258,7 +265,9 @@ def segment_scene(
     lap("downsample")
     labels = _euclidean_clusters(centroids, cluster_tolerance)[inverse]
     lap("cluster")
-    segments = _make_segments(idx, pts, labels, min_points, max_extent, inverse, centroids, cluster_tolerance)
+    segments = _make_segments(
+        idx, pts, labels, min_points, max_extent, inverse, centroids, cluster_tolerance, object_range
+    )
     lap("segments")
     timings["total"] = time.perf_counter() - t0
     return Segmentation(segments, plane, T_world_cam, timings, table, min_height)
@@ -538,11 +547,13 @@ def _make_segments(
     inverse: np.ndarray,
     centroids: np.ndarray,
     tolerance: float,
+    object_range: float | None = None,
 ) -> list[Segment]:
     """Segments of the clusters (``labels``: each point's) without their :func:`flying_pixels`,
     each split again into Euclidean clusters of its voxels (``inverse``: each point's voxel,
     ``centroids``: the voxels' mean points) where only voxels of flying pixels joined it to a
-    neighbour; the parts that pass the size tests, numbered by the image column of their centroid."""
+    neighbour; the parts that pass the size tests and lie within ``object_range`` (m) of the camera,
+    numbered nearest first (by their centroid's distance from the camera)."""
     counts = np.bincount(labels, minlength=1)
     kept = []
     for label in np.flatnonzero(counts >= max(min_points, 1)):
@@ -558,9 +569,9 @@ def _make_segments(
             part_members = members[parts == part]
             pts = points[part_members]
             size = float((pts.max(axis=0) - pts.min(axis=0)).max())
-            if size <= max_extent:
-                centre = pts.mean(axis=0)
-                kept.append((centre[0] / centre[2], -len(part_members), idx[part_members], pts, size))
+            distance = float(np.linalg.norm(pts.mean(axis=0)))
+            if size <= max_extent and (object_range is None or distance <= object_range):
+                kept.append((distance, -len(part_members), idx[part_members], pts, size))
     kept.sort(key=lambda k: k[:2])
     return [
         Segment(

@@ -79,12 +79,15 @@ def test_synthetic_scene_gives_one_segment_per_object() -> None:
     points, truth, T_true = _scene()
     seg = segment_scene(points)
     assert len(seg.segments) == 3
-    for k, s in enumerate(seg.segments):  # numbered left to right, and world x grows to the right
+    # numbered nearest first: the small box (nearest the camera), the cylinder, the tall box
+    distances = [float(np.linalg.norm(s.points_cam.mean(axis=0))) for s in seg.segments]
+    assert distances == sorted(distances)
+    for i, (k, s) in enumerate(zip([2, 1, 0], seg.segments)):
         world_z = transform_points(T_true, points[truth == k])[:, 2]
         expected = np.flatnonzero(truth == k)[world_z >= MIN_HEIGHT]  # a quiet table: the lowest band
         np.testing.assert_array_equal(np.sort(s.indices), expected)
         np.testing.assert_array_equal(s.points_cam, points[s.indices])
-        assert re.fullmatch(rf"segment {k} \({len(expected)} pts, \d+ cm\)", s.label)
+        assert re.fullmatch(rf"segment {i} \({len(expected)} pts, \d+ cm\)", s.label)
     assert len({tuple(s.color) for s in seg.segments}) == 3
     # The estimated table frame: the table at z = 0, the camera 0.7 m above it, x along the camera's x.
     table_world = transform_points(seg.T_world_cam, points[truth == -1])
@@ -298,11 +301,18 @@ def test_milk_clorox_floor_removed_and_objects_whole(milk_clorox: Capture) -> No
         assert 0.15 < obj.extent.max() < 0.30
     for s in seg.segments:
         assert 0.05 <= s.extent.max() <= (0.35 if s.centroid[2] < 1.4 else 0.5), s.label
-    # everything else is legs and casters of the office chair at the top edge, 1.5-2 m away (a leg
-    # with its caster is up to 46 cm long: the flying pixels that made it longer are gone)
-    others = [s for s in seg.segments if len(s.indices) < 5000]
-    assert len(seg.segments) == 3 + len(others)
-    assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(seg.segments, _pixel_boxes(seg)) if s in others)
+    # Only the three objects: the legs and casters of the office chair at the top edge, 1.5-2 m away,
+    # are outside the workspace (object_range); numbered nearest first.
+    assert len(seg.segments) == 3
+    distances = [float(np.linalg.norm(s.centroid)) for s in seg.segments]
+    assert distances == sorted(distances) and distances[-1] < 1.5
+    # Without the workspace they come back: small fragments (a leg with its caster is up to 46 cm
+    # long: the flying pixels that made it longer are gone), all far away at the top of the image.
+    everything = segment_scene(milk_clorox, object_range=None)
+    others = [s for s in everything.segments if len(s.indices) < 5000]
+    assert len(everything.segments) == 3 + len(others) and len(others) >= 4
+    boxes = _pixel_boxes(everything)
+    assert all(box[0] < 80 and s.centroid[2] > 1.4 for s, box in zip(everything.segments, boxes) if s in others)
 
 
 def test_milk_clorox_is_deterministic(milk_clorox: Capture) -> None:
