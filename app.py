@@ -5,7 +5,7 @@ The same as ``shapeviewer serve``; run ``python app.py --help`` for every option
 
 import sys
 
-from shapeviewer.cli.main import main
+from shapeviewer.cli import main
 
 if __name__ == "__main__":
     sys.exit(main(["serve", *sys.argv[1:]]))

@@ -1,4 +1,4 @@
-"""Dataset tab: time to load and show one view of a results store (the issue's budget: 0.5 s).
+"""Dataset tab: time to load and show one view of a results store (budget: 0.5 s).
 
 Usage: ``python benchmarks/dataset.py [--results DIR] [--runs 3]``. Default store: the sample store
 that ``python app.py`` builds in the user cache (built here first if missing, a few minutes).

@@ -16,6 +16,10 @@ distance from the camera.
 
 The paper (CUDA solver, Titan X): 2.136 s per detailed completion. Targets on 2 CPU cores:
 detailed mesh <= 1.0 s end to end, the smoothing solver <= 0.5 s.
+
+To time another revision, run its copy from a ``git worktree`` with ``PYTHONPATH=<worktree>`` (e.g.
+``PYTHONPATH=../old python ../old/benchmarks/detailed.py``), so that shapeviewer is imported from the
+worktree rather than from the installed checkout.
 """
 
 from __future__ import annotations
@@ -25,13 +29,11 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from pipeline import load_captures  # noqa: E402  (benchmarks/pipeline.py)
-
 import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
+
+from common.captures import load_captures  # noqa: E402  (benchmarks/common/captures.py)
 
 STEPS = (
     ("density", "density ratio"),

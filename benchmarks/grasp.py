@@ -1,4 +1,4 @@
-"""Grasp planning, execution and lift-test speed on this machine (issue 5 targets, on 2 CPU cores:
+"""Grasp planning, execution and lift-test speed on this machine (targets, on 2 CPU cores:
 20 grasps planned on a completed object <= 10 s; kinematic execution <= 50 ms per grasp; lift test
 <= 0.5 s per grasp; GraspIt's simulated annealing took 70,000 steps per object).
 

@@ -1,11 +1,11 @@
-"""Load: several users on one viewer server at once (issue 13, item 6).
+"""Load: several users on one viewer server at once.
 
     python benchmarks/load.py [--sessions 5] [--minutes 2] [--planners 1] [--browser] [--json out.json]
 
 Starts the server as a subprocess (``python app.py --port P``, so that its memory can be read from
 ``/proc``; or ``--url URL [--pid PID]`` for one already running), then runs ``--sessions`` lightweight
 sessions: headless viser clients in this process that speak viser's websocket protocol
-(benchmarks/viser_client.py) and draw nothing. With ``--browser``, one more session is a real
+(benchmarks/common/viser_client.py) and draw nothing. With ``--browser``, one more session is a real
 headless Chromium (Playwright) that clicks on its canvas.
 
 Every session, for ``--minutes`` (then no new action; an action under way ends within its timeout):
@@ -35,7 +35,7 @@ sessions, as many as the run's, have clicked a few segments and planned once at 
 gone), the peak while the sessions run, and ``--settle`` seconds after they all closed; and whether
 Ctrl-C stopped it and every process it started (zombies awaiting init excepted).
 
-Targets (issue 13, 5 sessions x 2 minutes with one planning grasps): 0 errors, 0 results in the
+Targets (5 sessions x 2 minutes with one planning grasps): 0 errors, 0 results in the
 wrong session, click -> own fast mesh p95 <= 0.5 s (lightweight sessions), memory back to the
 baseline (taken here as within 10 % or 50 MB of it, whichever is larger).
 """
@@ -59,9 +59,11 @@ from typing import Any
 
 import numpy as np
 import viser
-from load_report import _plain, markdown, summarize
-from server_process import MemoryWatch, Server
-from viser_client import ViserClient, free_port
+
+from common.browser import CHROMIUM, CHROMIUM_ARGS
+from common.load_report import _plain, markdown, summarize
+from common.server_process import MemoryWatch, Server
+from common.viser_client import ViserClient, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -402,9 +404,6 @@ class BrowserSession(Session):
         self._xy: tuple[float, float] | None = None
 
     async def open(self, playwright) -> None:
-        sys.path.insert(0, str(ROOT / "tests"))
-        from helpers import CHROMIUM, CHROMIUM_ARGS  # tests/helpers.py
-
         self.browser = await playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         self.page = await self.browser.new_page(viewport={"width": 1280, "height": 800})
         self.page.on("websocket", self._on_websocket)

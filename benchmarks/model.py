@@ -1,4 +1,4 @@
-"""CNN inference speed on this machine (issue targets: <= 30 ms for one grid, <= 10 ms per grid in
+"""CNN inference speed on this machine (targets: <= 30 ms for one grid, <= 10 ms per grid in
 batches of 8, on 2 CPU cores). Prints medians over repeated runs.
 
     python benchmarks/model.py [--weights PATH] [--repeats 20]

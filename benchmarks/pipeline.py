@@ -11,12 +11,16 @@ What is measured (medians over every capture, and over every segment for complet
 * click -> fast mesh: from the moment the viewer starts handling a click on a segment
   (:meth:`Session.complete` of the client's own session) until that client has RECEIVED the scene-node message of
   that segment's fast mesh over the websocket (the mesh is queued first, then the CNN grids).
-  The client is a minimal viser websocket client in this process (benchmarks/viser_client.py) that
+  The client is a minimal viser websocket client in this process (benchmarks/common/viser_client.py) that
   decodes viser's wire format and timestamps arrivals; it does not render, so browser drawing time
   is not included.
 
 The paper's figures (Titan X GPU): segmentation 0.119 s, one fast (non-target) completion 0.142 s.
 Targets on 2 CPU cores: segmentation <= 0.12 s, click -> fast mesh <= 0.15 s.
+
+To time another revision, run its copy from a ``git worktree`` with ``PYTHONPATH=<worktree>`` (e.g.
+``PYTHONPATH=../old python ../old/benchmarks/pipeline.py``), so that shapeviewer is imported from the
+worktree rather than from the installed checkout.
 """
 
 from __future__ import annotations
@@ -26,35 +30,15 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from viser_client import ArrivalClock, free_port  # noqa: E402  (benchmarks/viser_client.py)
-
 import shapeviewer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads)
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
-ORGANIZED_REAL = (
-    "milk_cartoon_all_small_clorox.pcd",
-    "table_scene_mug_stereo_textured.pcd",
-    "frame_20121214T142255.814212.pcd",
-)
+from common.captures import load_captures  # noqa: E402  (benchmarks/common/captures.py)
+from common.viser_client import ArrivalClock, free_port  # noqa: E402  (benchmarks/common/viser_client.py)
+
 PAPER = {"segmentation": 0.119, "click_to_mesh": 0.142}
 TARGET = {"segmentation": 0.12, "click_to_mesh": 0.15}
-
-
-def load_captures(seeds: list[int]) -> list:
-    from shapeviewer.perception.capture import load_capture
-    from shapeviewer.sim.demo_scene import default_scene
-
-    caps = [default_scene(s) for s in seeds]
-    for name in ORGANIZED_REAL:
-        if (REAL / name).exists():
-            caps.append(load_capture(REAL / name))
-        else:
-            print(f"(skipping {name}: not found in {REAL})", file=sys.stderr)
-    return caps
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""Speed of ranking grasps by robustness over the completion's uncertainty (issue 14 target: the
+"""Speed of ranking grasps by robustness over the completion's uncertainty (target: the
 planner's 20 grasps ranked over 8 sample completions in <= 3 s, median, on 2 CPU cores).
 
 Cases are test views as ``shapeviewer evaluate --views tabletop`` sees them: the view's segment is
@@ -31,7 +31,8 @@ import statistics
 import time
 
 import numpy as np
-from ranking import setting_options
+
+from common.ranking_settings import setting_options
 
 
 def cpu_seconds() -> float:

@@ -1,4 +1,4 @@
-"""Segmentation speed on the real organized captures (paper: 0.119 s per scene, SPEC §1).
+"""Segmentation speed on the real organized captures (paper: 0.119 s per scene).
 
 Usage: ``python benchmarks/segment.py [--runs 5] [--data DIR]``. Prints, per capture, the median
 over the runs of every stage of :func:`shapeviewer.perception.segment.segment_scene` and what it found.

@@ -3,6 +3,8 @@
 import os
 from typing import Any
 
+__version__ = "0.2.0"
+
 # OpenMP threads that spin while they wait make a 2-thread CNN pass 10-20x slower (about 0.3 s
 # instead of 20 ms) as soon as anything else runs on a 2-core machine. Sleeping waits keep clicks
 # fast under load. Only effective before torch is first imported, hence here.
@@ -29,6 +31,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "completion_metrics": ".evaluation.metrics",
     "plan_grasps": (".grasp.plan", "plan"),
     "execute_grasps": (".grasp.execute", "execute_grasps"),
+    "robust_grasps": (".grasp.pick", "robust_grasps"),
     "evaluate": (".evaluation.run", "evaluate"),
     "ViewerApp": ".viewer.app",
 }

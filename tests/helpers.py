@@ -34,6 +34,10 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 
+# The longest a browser test waits for a state it expects (s): a software-rendered page on 2 busy
+# cores can take many seconds to draw, and a wait ends as soon as its state is reached anyway.
+BROWSER_WAIT = 120.0
+
 needs_browser = pytest.mark.skipif(
     not CHROMIUM.exists() or sync_playwright is None,
     reason="needs Debian chromium at /usr/bin/chromium (apt-get install chromium) and playwright "
@@ -102,7 +106,7 @@ def job_running(session, timeout: float = 60.0) -> Iterator[None]:
         holder.join(timeout)
 
 
-def browser_session(viewer, timeout: float = 60.0):
+def browser_session(viewer, timeout: float = BROWSER_WAIT):
     """The session of the (first) browser connected to ``viewer``, once it has its scene."""
 
     def ready():
@@ -122,7 +126,7 @@ def browser_page(app, **page_options) -> Iterator:
         try:
             page = browser.new_page(**page_options)
             page.goto(app.url)
-            page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=30_000)
+            page.wait_for_function("!document.body.innerText.includes('Connecting')", timeout=BROWSER_WAIT * 1000)
             yield page
         finally:
             browser.close()
@@ -145,9 +149,9 @@ def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] |
 
     from shapeviewer.viewer.rays import project_to_pixels
 
-    cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+    cam = wait_until(lambda: reported_camera(client), BROWSER_WAIT, "the browser's camera")
     canvas = page.locator("canvas").first
-    canvas.wait_for(state="visible", timeout=20_000)
+    canvas.wait_for(state="visible", timeout=BROWSER_WAIT * 1000)
     box = canvas.bounding_box()
     R = viser.transforms.SO3(np.asarray(cam.wxyz)).as_matrix()
     u, v = project_to_pixels(
@@ -156,6 +160,20 @@ def canvas_point(page, client, point_world: np.ndarray) -> tuple[float, float] |
     x = box["x"] + u * box["width"] / cam.image_width
     y = box["y"] + v * box["height"] / cam.image_height
     return (x, y) if page.evaluate("([x, y]) => document.elementFromPoint(x, y)?.tagName", [x, y]) == "CANVAS" else None
+
+
+def wait_for_frames(page, frames: int = 3, timeout: float = BROWSER_WAIT) -> None:
+    """Wait until ``page`` has drawn ``frames`` more animation frames, so that what it had received
+    before the call is on its canvas (for a screenshot)."""
+    page.evaluate(
+        """n => {
+          window.__framesToDraw = n;
+          const tick = () => { if (--window.__framesToDraw > 0) requestAnimationFrame(tick); };
+          requestAnimationFrame(tick);
+        }""",
+        frames,
+    )
+    page.wait_for_function("() => window.__framesToDraw <= 0", polling=100, timeout=int(timeout * 1000))
 
 
 def visible_segment(page, client, session, cam, order) -> tuple[int, tuple[float, float]] | None:
@@ -196,7 +214,7 @@ def load_exported_grasp(folder: Path, hand_urdf: Path, physics_client: int, inde
     return obj, hand
 
 
-def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = 45.0) -> None:
+def click_until(page, xy: tuple[float, float], done, what: str, timeout: float = BROWSER_WAIT) -> None:
     """Click at ``xy`` until ``done()``: the canvas may not handle pointer events before its
     first frame."""
     deadline = time.monotonic() + timeout
@@ -218,7 +236,7 @@ def page_text(page) -> str:
     return page.evaluate("() => document.body.innerText")
 
 
-def wait_for_text(page, text: str, timeout: float = 30.0) -> None:
+def wait_for_text(page, text: str, timeout: float = BROWSER_WAIT) -> None:
     """Wait until the page shows ``text`` (a notification, the panel's markdown, ...)."""
     page.wait_for_function(
         "t => document.body.innerText.includes(t)", arg=text, polling=500, timeout=int(timeout * 1000)
@@ -248,21 +266,21 @@ def click(page, locator, what: str) -> None:
     (Playwright's own actionability checks wait for animation frames, which a software-rendered
     WebGL canvas on a busy machine starves; these checks poll the page instead.)"""
     target = locator.filter(visible=True).first
-    target.wait_for(state="visible", timeout=30_000)
+    target.wait_for(state="visible", timeout=BROWSER_WAIT * 1000)
 
     def hit() -> tuple[float, float] | None:
         x, y, ok = target.evaluate(HIT_POINT)
         time.sleep(0.15)
         return (x, y) if ok and target.evaluate(HIT_POINT)[:2] == [x, y] else None
 
-    page.mouse.click(*wait_until(hit, 30, f"{what} to be clickable", step=0.2))
+    page.mouse.click(*wait_until(hit, BROWSER_WAIT, f"{what} to be clickable", step=0.2))
 
 
 def press(page, name: str) -> None:
     """Click the button called exactly ``name`` once it is enabled (no job running)."""
     button = page.get_by_role("button", name=name, exact=True).filter(visible=True).first
-    button.wait_for(state="visible", timeout=30_000)
-    wait_until(button.is_enabled, 60, f"the {name!r} button to be enabled (no job running)")
+    button.wait_for(state="visible", timeout=BROWSER_WAIT * 1000)
+    wait_until(button.is_enabled, BROWSER_WAIT, f"the {name!r} button to be enabled (no job running)")
     click(page, button, f"the {name!r} button")
 
 
@@ -270,7 +288,7 @@ def choose(page, dropdown: str, option: str) -> None:
     """Pick ``option`` (its full text) in the visible dropdown labelled ``dropdown``."""
     click(page, page.get_by_role("combobox", name=dropdown, exact=True), f"the {dropdown!r} dropdown")
     click(page, page.get_by_role("option", name=option, exact=True), f"the {option!r} entry")
-    wait_until(lambda: dropdown_value(page, dropdown) == option, 10, f"{dropdown!r} to show {option!r}")
+    wait_until(lambda: dropdown_value(page, dropdown) == option, BROWSER_WAIT, f"{dropdown!r} to show {option!r}")
 
 
 def dropdown_value(page, dropdown: str) -> str:
@@ -281,7 +299,7 @@ def dropdown_options(page, dropdown: str) -> list[str]:
     """The entries of the visible dropdown ``dropdown`` (opened and closed again)."""
     click(page, page.get_by_role("combobox", name=dropdown, exact=True), f"the {dropdown!r} dropdown")
     options = page.get_by_role("option")
-    options.first.wait_for(timeout=10_000)
+    options.first.wait_for(timeout=BROWSER_WAIT * 1000)
     texts = [t.strip() for t in options.all_inner_texts()]
     page.keyboard.press("Escape")
     return texts

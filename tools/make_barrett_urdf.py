@@ -2,7 +2,7 @@
 
 Run from the repo root: ``python tools/make_barrett_urdf.py``. The generated URDF is committed.
 
-Geometry (metres, radians), following the kinematics of GraspIt's BH8-280 model (SPEC section 8):
+Geometry (metres, radians), following the kinematics of GraspIt's BH8-280 model:
 - Palm frame: origin at the centre of the palm face, +z the approach direction out of the palm.
   The palm is a cylinder of radius 45 mm and height 75 mm below the face.
 - Fingers 1 and 2 turn about spread axes parallel to z at x = +25 mm and x = -25 mm; a 50 mm

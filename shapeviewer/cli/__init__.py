@@ -1,5 +1,5 @@
 """The ``shapeviewer`` command: ``complete``, ``grasp``, ``serve``, ``generate``, ``train``, ``evaluate`` and more."""
 
-from .main import main
+from .commands import main
 
 __all__ = ["main"]

@@ -1,4 +1,4 @@
-"""The paper's two completion baselines (Varley et al. 2017, Sec. VI-A; SPEC §6).
+"""The paper's two completion baselines (Varley et al. 2017, Sec. VI-A).
 
 * :func:`partial_mesh`: marching cubes of the observed points alone, then cotangent Laplacian
   smoothing. It has no notion of the unseen side: a thin closed shell around the visible surface.
@@ -28,7 +28,7 @@ from .voxel import GridFrame, points_to_grid, unit_plane
 MIN_POINTS = 20
 MAX_GRID_DIM = 256  # voxels per side; larger means outliers or a far too dense cloud
 
-# Partial baseline (SPEC §6).
+# Partial baseline: the observed cloud alone.
 PARTIAL_LEAF_FACTOR = 4.0  # leaf = 4 x the observed mean nearest-neighbour distance
 PARTIAL_ISO_LEVEL = 0.5
 SMOOTHING_ITERATIONS = 6
@@ -101,7 +101,7 @@ def partial_mesh(
     iso_level: float = PARTIAL_ISO_LEVEL,
     smoothing_iterations: int = SMOOTHING_ITERATIONS,
 ) -> trimesh.Trimesh:
-    """The Partial baseline: marching cubes of the observed cloud alone, then smoothing (SPEC §6).
+    """The Partial baseline: marching cubes of the observed cloud alone, then smoothing.
 
     The points are voxelized at a leaf of ``leaf_factor`` x their mean nearest-neighbour distance,
     the occupancy is meshed at ``iso_level`` and the mesh gets ``smoothing_iterations`` steps of

@@ -3,7 +3,7 @@
 A box rests on a table on one of its faces, so its edges are the table's normal and two directions
 on the table, and a camera above the table sees its whole top face: the observed points span its
 true extents (within 5 mm on the tabletop views), while the network's completion of a box is larger
-along every axis (3-29 mm, median about 10 mm; model card, "Session 32"). Here the cuboid is fitted
+along every axis (3-29 mm, median about 10 mm; docs/studies/grasp-misses.md). Here the cuboid is fitted
 to the points and, when they look like one (:attr:`Cuboid.accepted`), its occupancy replaces the
 network's answers (:func:`shapeviewer.completion.pipeline.complete_points`).
 

@@ -1,4 +1,4 @@
-"""The shape completion CNN (paper Fig. 3; SPEC §3) and a compact network that trains on a CPU.
+"""The shape completion CNN (paper Fig. 3) and a compact network that trains on a CPU.
 
 Both map a (B, 1, 40, 40, 40) occupancy grid (indexed [x, y, z] in the camera frame, placement of
 :mod:`shapeviewer.completion.voxel`) to per-voxel occupancy probabilities of the same shape.
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import logging
+import pickle
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..errors import ShapeviewerError
 from ..fileio import atomic_write
 from .reconstruct import MESH_LEVEL
 from .voxel import GRID_DIM
@@ -173,10 +175,10 @@ def default_device() -> torch.device:
 # the 0.5 contour outside the object (reconstruct.MESH_LEVEL), the soft label on it.
 LABEL_MESH_LEVELS = {"solid": MESH_LEVEL, "fraction": 0.5}
 # The output grid is the network's estimate of the paper's Y: every voxel the object's surface
-# passes through (SPEC §4). A network trained on Y marks those above 0.5; one trained on the soft
+# passes through (as binvox marked it). A network trained on Y marks those above 0.5; one trained on the soft
 # label answers how much of each voxel the object fills, and a voxel the surface only grazes is
 # part of Y though it is mostly empty. On training views its Y Jaccard peaks at 0.2-0.25
-# (model card, "The output grid"), so such a network's grid is p > 0.25.
+# (docs/studies/grid-placement.md), so such a network's grid is p > 0.25.
 LABEL_GRID_LEVELS = {"solid": 0.5, "fraction": 0.25}
 
 
@@ -292,7 +294,7 @@ class Completer:
 # probability is first pushed towards its decision at SPREAD_LEVEL,
 # sigmoid(k (logit p - logit level)), so answers of 0.3 and 0.5, which decide differently, spread
 # more than answers of 0.05 and 0.25, which agree. The plain std of the probabilities ranks voxels by
-# error less well (model card). The level sits a little below the soft label's surface (0.5): every
+# error less well (docs/studies/uncertainty.md). The level sits a little below the soft label's surface (0.5): every
 # voxel the visible surface passes through holds about half object, and a decision at exactly 0.5
 # there flips on sub-voxel differences between samples that agree where the surface is; at 0.4 it
 # asks whether the object reaches into the voxel, which the observed side settles and the unseen
@@ -373,7 +375,7 @@ def training_curves(completer: Completer) -> Path | None:
     return None
 
 
-class WeightsError(ValueError):
+class WeightsError(ShapeviewerError, ValueError):
     """A weights file is missing, unreadable or does not match its architecture."""
 
 
@@ -400,7 +402,12 @@ def load_completer(weights: str | Path | None = None, device: str | torch.device
         net = build(arch, **blob.get("meta", {}).get("arch_kwargs", {}))
         net.load_state_dict(blob["state_dict"])
     except Exception as e:  # corrupt zip, wrong keys, wrong shapes: one clear message
-        raise WeightsError(f"cannot load weights {path}: {e}") from e
+        # torch's own message on a file it refuses ends with advice to load it with weights_only=False,
+        # i.e. to run whatever code the file holds: never pass that on; say what the file is not.
+        reason = " ".join(str(e).split())[:300] or type(e).__name__
+        if isinstance(e, pickle.UnpicklingError) or "weights_only" in str(e):
+            reason = "not a weights file of tensors (torch.load with weights_only=True refused it)"
+        raise WeightsError(f"cannot load weights {path}: {reason}") from None
     net = _for_inference(net, device)
     meta = dict(blob.get("meta", {}))
     log.info("loaded %s weights from %s in %.2f s", arch, path, time.perf_counter() - t0)

@@ -10,10 +10,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 import trimesh
 
+from ..errors import ShapeviewerError
 from .cuboid import Cuboid, fit_cuboid, occupancy
 from .model import SYMMETRIES, Completer, sample_spread
 from .reconstruct import MESH_LEVEL, detailed_mesh, fast_mesh
@@ -24,13 +26,17 @@ MIN_SEGMENT_POINTS = 50
 MIN_SEGMENT_EXTENT = 0.01  # metres
 
 
-class SegmentTooSmallError(ValueError):
+class SegmentTooSmallError(ShapeviewerError, ValueError):
     """A segment has too few points or too small an extent to place a grid on."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Completion:
-    """One segment's completion.
+    """One segment's completion: what the network and the shape priors made of it (read-only).
+
+    The meshes made later on request (Algorithm 1's detailed mesh, the baselines, the grasp
+    envelope) are not part of it: each caller keeps them (the viewer on its per-segment
+    :class:`~shapeviewer.viewer.results.SegmentResult`).
 
     Attributes:
         segment_id: the segment completed.
@@ -41,18 +47,13 @@ class Completion:
         support_plane: the table ``(a, b, c, d)`` in the camera frame, or None.
         probabilities: (40, 40, 40) float32 CNN output: the mean of its ``samples``, the network's
             answers for the 8 mirrored views (test-time augmentation: averaging removes part of each
-            answer's error; the model card has the figures).
+            answer's error; docs/studies/grid-placement.md has the figures).
         fast_mesh: marching cubes of the output (camera frame, metres), None if the output is empty.
         samples: (8, 40, 40, 40) sample completions (:meth:`~shapeviewer.completion.model.Completer.predict_samples`),
             the answers the output averages; their per-voxel disagreement (:attr:`spread`) is the
             completion's uncertainty.
-        detailed_mesh: Algorithm 1's mesh (camera frame, metres) once computed.
-        envelope_mesh: the grasp envelope of the sample completions
-            (:func:`~shapeviewer.grasp.robust.envelope_mesh`; camera frame, metres) once computed.
-        partial_mesh, mirror_mesh, hull_mesh: the baselines' meshes of the same segment (camera frame, metres)
-            once computed.
-        timings: seconds per stage (``voxelize``, ``cnn``, ``fast_mesh``, ``detailed_mesh``, ...;
-            ``detailed_steps`` is the dict :func:`~shapeviewer.completion.reconstruct.detailed_mesh` fills).
+        timings: seconds per stage (``voxelize``, ``cnn``, ``priors``, ``fast_mesh``); a caller may
+            add the stages it runs after (the CLI adds ``detailed_mesh``).
         error: why a mesh is missing, if it is.
         mesh_level: the probability its meshes are taken at (the network's
             :attr:`~shapeviewer.completion.model.Completer.mesh_level`).
@@ -74,12 +75,7 @@ class Completion:
     samples: np.ndarray
     context: np.ndarray | None = None
     support_plane: np.ndarray | None = None
-    detailed_mesh: trimesh.Trimesh | None = None
-    envelope_mesh: trimesh.Trimesh | None = None
-    partial_mesh: trimesh.Trimesh | None = None
-    mirror_mesh: trimesh.Trimesh | None = None
-    hull_mesh: trimesh.Trimesh | None = None
-    timings: dict = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
     error: str | None = None
     mesh_level: float = MESH_LEVEL
     grid_level: float = 0.5
@@ -198,14 +194,14 @@ def complete_points(
     has each of its answers revolved about that axis (:func:`~shapeviewer.completion.revolve.revolve`), which
     gives the far side the near side's shape; the seen free space stays empty. Off by default: it
     closes upside-down bowls and cups' far walls but fattens cans and fruit, and over 500 tabletop
-    views it moves neither the meshes nor the grasps (model card, "Session 33").
+    views it moves neither the meshes nor the grasps (docs/studies/revolve-prior.md).
 
     ``fit_boxes``: on a table, a segment whose points fill a rectangle on the table, lie on the faces
     of a box within depth noise and face along its edges (:attr:`~shapeviewer.completion.cuboid.Cuboid.accepted`)
     is completed as that box (:func:`~shapeviewer.completion.cuboid.occupancy` in place of every answer): the
     network's boxes are about 10 mm too large along every edge. On by default: over 500 tabletop
     views it takes 12 boxes and nothing else, brings 11 of them closer to the truth and lifts 4 more
-    of them with the robust grasp (model card, "Session 34").
+    of them with the robust grasp (docs/studies/box-prior.md).
 
     Raises :class:`SegmentTooSmallError` if any segment is unusable (check first with
     :func:`check_segment` to skip those).
@@ -274,7 +270,7 @@ def complete(
     points_cam: np.ndarray,
     *,
     support_plane: np.ndarray | None = None,
-    mode: str = "detailed",
+    mode: Literal["fast", "detailed"] = "detailed",
     completer: Completer | None = None,
     revolve_answers: bool = False,
     fit_boxes: bool = True,

@@ -14,15 +14,16 @@ import numpy as np
 import trimesh
 from skimage import measure
 
+from ..errors import ShapeviewerError
 from ..geometry import concatenate_meshes
 from .voxel import GridFrame, below_plane, seen_free
 
 # A network trained on Y marks its output grid at p > 0.5 (the paper's, scored against Y at
 # 40^3), but its meshes are taken higher. Y marks every voxel the object's surface passes through
-# (SPEC §4), so such a network learns a shape up to a voxel fatter than the object and its 0.5
+# (as binvox marked it), so such a network learns a shape up to a voxel fatter than the object and its 0.5
 # contour lies outside the true surface: fast meshes at 0.5 held 1.35 times the object's volume
 # (median, 100 tabletop views). Procedural shapes fit best at 0.7, the scanned YCB objects at
-# 0.6-0.65 (model card, "Mesh level"). A network's own level is ``Completer.mesh_level``.
+# 0.6-0.65 (docs/studies/soft-labels.md). A network's own level is ``Completer.mesh_level``.
 MESH_LEVEL = 0.6
 # On a binary volume the saddle of every face with two diagonal occupied corners lies exactly on
 # the level 0.5, and marching cubes may then join four triangles at one edge (not watertight).
@@ -35,7 +36,7 @@ LEVEL_NUDGE = 1e-4
 OFF_LEVEL = 1e-3
 
 
-class EmptyCompletionError(ValueError):
+class EmptyCompletionError(ShapeviewerError, ValueError):
     """The CNN marked no voxel as occupied, so there is no surface to extract."""
 
 
@@ -82,19 +83,20 @@ def fast_mesh(probabilities: np.ndarray, frame: GridFrame, *, level: float = MES
 
 
 # ----------------------------------------------------------------------------------------------
-# Detailed mesh: Algorithm 1 of the paper with the numbers of SPEC §5.
+# Detailed mesh: Algorithm 1 of the paper with the numbers the authors' code used.
 
 DENSITY_SAMPLE_STEP = 10  # density estimated on every 10th point against the whole cloud
 UPSAMPLE_RATIO_SCALE = 3 / 8  # r = ceil(3/8 * observed density / CNN density)
 # The paper's r was "usually 2 or 3" (a Kinect at 0.5-1 m). A camera closer or finer than that (a
 # RealSense at 1280 x 720, 0.35 m) makes r 5-9, a merged grid of up to 300^3 and up to a minute of
-# smoothing for a mesh within 0.01 J80 of the one at r = 3 (the model card's dense-cloud figures).
+# smoothing for a mesh within 0.01 J80 of the one at r = 3 (docs/studies/grid-placement.md).
 MAX_UPSAMPLE_RATIO = 3
 MERGE_LEAF_FACTOR = 2.0  # re-voxelize at 2 x the observed mean nearest-neighbour distance
 MERGE_PADDING = 6  # voxels of padding on every side of the merged grid
 # Each observed point marks the merge voxel this many leaves behind it along its camera ray, not the
 # voxel it falls in: the union of the voxels of noisy points grows the visible side outward by half a
-# leaf to a leaf, and the soft-label network (session 11) already puts its surface on the points.
+# leaf to a leaf, and the soft-label network (``train --label fraction``) already puts its surface on
+# the points.
 OBSERVED_INSET = 1.0
 BAND = 4  # Lempitsky smoothing optimises a band of 4 voxels around the boundary
 BAND_VALUE = 5.0  # F is fixed at +/-5 outside the band

@@ -2,7 +2,7 @@
 
 Bowls, plates, cups, cans, jars and bottles rest on a table as surfaces of revolution about its
 normal, upright or upside down. The network completes the side the camera sees and hedges on the far
-side; an upside-down bowl's completion is the near half of the dome (model card, "Session 32"). Here
+side; an upside-down bowl's completion is the near half of the dome (docs/studies/grasp-misses.md). Here
 the vertical axis is fitted to the observed points and the network's answer is revolved about it: at
 every voxel, the answer's 75th percentile over the angles about the axis at the voxel's radius and
 height, where it is larger than the answer itself.

@@ -1,4 +1,4 @@
-"""Voxel grids in the paper's placement (Varley et al. 2017, Sec. IV-B; SPEC §2).
+"""Voxel grids in the paper's placement (Varley et al. 2017, Sec. IV-B).
 
 A partial view is scaled so that the largest side of its axis-aligned bounding box spans
 ``GRID_SPAN`` (32) voxels and translated so that the box centre lands on voxel coordinate
@@ -99,7 +99,7 @@ def frame_for_points(points_cam: np.ndarray, *, depth_shift: float = 0.0) -> Gri
 
     With ``depth_shift=0`` this is the paper's placement: the visible box's centre at voxel
     (20, 20, 18). That leaves the back of deep objects (cans, cups, fruit) outside the grid in
-    most tabletop views (``benchmarks/grid_room.py``), so a network can be trained with the
+    most tabletop views (``benchmarks/studies/grid_room.py``), so a network can be trained with the
     object moved up to ``depth_shift`` voxels towards the camera instead; the front of the
     visible box stays at least ``FRONT_MARGIN`` voxels inside the grid. A network's placement is
     in its weights (:attr:`shapeviewer.completion.model.Completer.depth_shift`); inference must use it.
@@ -156,7 +156,7 @@ def solid_grid(
 ) -> np.ndarray:
     """Every voxel a closed mesh touches: its interior and every voxel its surface passes through.
 
-    This is the ground truth Y of the paper (binvox marks surface and interior, SPEC §4).
+    This is the ground truth Y of the paper (binvox marks surface and interior).
     The interior comes from exact inside tests of the voxel centres; the surface voxels from dense
     surface samples. Never a hole-filled surface voxelization (that over-fills thin shells).
 

@@ -1,4 +1,4 @@
-"""Shape-completion metrics of the paper's Tables I-III (Varley et al. 2017, Sec. VI-A; SPEC §7).
+"""Shape-completion metrics of the paper's Tables I-III (Varley et al. 2017, Sec. VI-A).
 
 Every function compares two triangle meshes given in the same frame and unit (metres); which frame
 does not matter, as long as both meshes share it. The metrics are symmetric in their two arguments.
@@ -41,7 +41,7 @@ def jaccard(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, resolution: int = 
 
     The voxelization of a mesh marks every voxel the solid touches: a voxel is occupied if its
     centre is inside the mesh or the mesh's surface passes through it, as binvox marked the paper's
-    ground truth (SPEC §4). It is computed as: any of the voxel's 27 half-voxel lattice points
+    ground truth (at 256^3). It is computed as: any of the voxel's 27 half-voxel lattice points
     (centre, face centres, edge midpoints, corners) is inside the mesh (exact ray-parity tests in
     float32), or a surface sample falls in the voxel (the mesh's vertices plus seeded random samples
     about half a voxel apart, so the result is deterministic). The lattice test finds every voxel
@@ -136,7 +136,7 @@ def hausdorff(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, samples: int = 7
 def geodesic_divergence(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, seed: int = 0, n_samples: int = 200) -> float:
     """Jensen-Shannon divergence of the two meshes' global geodesic shape distributions.
 
-    Hamza & Krim (2003) as the authors' ``geodesic_comparison`` code computed it (SPEC §7):
+    Hamza & Krim (2003) as the authors' ``geodesic_comparison`` code computed it:
 
     1. Work in centimetres. Pick ``n_samples`` distinct triangles uniformly at random (every
        triangle equally likely, whatever its area; all of them if the mesh has fewer) and take their

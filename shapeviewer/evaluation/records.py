@@ -14,29 +14,50 @@ with ``stem`` from :func:`view_stem`. A view file is either the current format, 
 :func:`view_record`), or the first format, a bare list of completion rows whose meshes sit at the
 paths above and whose seed was not recorded. :func:`parse_view_file` reads both.
 
-A completion row has the keys :data:`ROW_FIELDS` (metrics NaN when the method failed); a grasp
-row (:func:`grasp_rows`) the keys :data:`GRASP_ROW_FIELDS`.
+A completion row (:class:`CompletionRow`) has the keys :data:`ROW_FIELDS` (metrics NaN when the
+method failed); a grasp row (:func:`grasp_rows`) the keys :data:`GRASP_ROW_FIELDS`. Method names
+are :mod:`.methods`' :data:`~.methods.Method` strings, in file names as in rows.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Literal, cast, get_args
 
+from ..errors import ShapeviewerError
 from ..fileio import atomic_write
 from ..sim import catalogue
+from .methods import ENVELOPE as ENVELOPE
+from .methods import GRASP_TABLE_METHODS as GRASP_TABLE_METHODS
+from .methods import METHODS as METHODS
+from .methods import Method, is_method
 
-METHODS = ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
-# Meshes grasps are planned on that are not completions scored in Tables I-III: the grasp envelope
-# of the CNN's sample completions (:func:`shapeviewer.grasp.robust.envelope_mesh`).
-ENVELOPE = "Ours-envelope"
-GRASP_TABLE_METHODS = (*METHODS, ENVELOPE)  # the columns of the grasp tables
-METRICS = ("jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic")
+Metric = Literal["jaccard", "j80", "hausdorff_mean_mm", "hausdorff_max_mm", "hausdorff_rms_mm", "geodesic"]
+METRICS: tuple[str, ...] = get_args(Metric)  # the Metric names, as row keys and columns
+# Which way each metric is better, and its title.
+HIGHER_IS_BETTER: dict[Metric, bool] = {
+    "jaccard": True,
+    "j80": True,
+    "hausdorff_mean_mm": False,
+    "hausdorff_max_mm": False,
+    "hausdorff_rms_mm": False,
+    "geodesic": False,
+}
+METRIC_TITLES: dict[Metric, str] = {
+    "jaccard": "Jaccard",
+    "j80": "J80 (sampled solids)",
+    "hausdorff_mean_mm": "Hausdorff mean (mm)",
+    "hausdorff_max_mm": "Hausdorff max (mm)",
+    "hausdorff_rms_mm": "Hausdorff RMS (mm)",
+    "geodesic": "Geodesic divergence",
+}
 # ``prior``: the shape prior the pipeline applied to our completions ("box", "revolution" or "").
 ROW_FIELDS = ("object", "view", "view_set", "kind", "sensor", "method", *METRICS, "seconds", "error", "prior")
 # What a view can show: the ground truth, the partial view, then each method (paper Fig. 1 order).
-KINDS = ("truth", "points", *METHODS)
+KINDS: tuple[str, ...] = ("truth", "points", *METHODS)
 # Per view and method, means over its grasps (the keys of a view's "grasps" entries).
 GRASP_MEANS = (
     "joint_error_deg",
@@ -89,6 +110,98 @@ GRASP_ROW_FIELDS = (
 )
 
 
+def _float(v) -> float:
+    """A value read from a view file as float; None, "", or anything unreadable is NaN."""
+    try:
+        return math.nan if v is None or v == "" else float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+@dataclass(frozen=True)
+class CompletionRow:
+    """One method's completion of one view (a completion row, :data:`ROW_FIELDS`), as saved in a
+    view record's ``rows`` and in ``rows.csv``.
+
+    Attributes:
+        object, view: which view (``view`` numbers the 726-view orientation grid; tabletop views
+            from ``viewsets.TABLETOP_VIEW_OFFSET``).
+        view_set: the view set (:data:`viewsets.ViewSet`).
+        method: the completion method.
+        kind: the object's shape kind (:func:`catalogue.shape_kind`; "" in rows written before it was).
+        sensor: ``kinect`` or ``realsense`` ("" when not recorded).
+        jaccard, j80, hausdorff_mean_mm, hausdorff_max_mm, hausdorff_rms_mm, geodesic: the metrics
+            against the ground truth (:func:`metrics.completion_metrics`; distances in mm), NaN when
+            the method failed.
+        seconds: completion time (s), NaN when it failed.
+        error: why the method failed ("" when it did not).
+        prior: the shape prior the pipeline applied to our completions (``box``, ``revolution`` or "").
+    """
+
+    object: str
+    view: int
+    view_set: str
+    method: Method
+    kind: str = ""
+    sensor: str = ""
+    jaccard: float = math.nan
+    j80: float = math.nan
+    hausdorff_mean_mm: float = math.nan
+    hausdorff_max_mm: float = math.nan
+    hausdorff_rms_mm: float = math.nan
+    geodesic: float = math.nan
+    seconds: float = math.nan
+    error: str = ""
+    prior: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+    def metric(self, name: Metric) -> float:
+        return float(getattr(self, name))
+
+    def to_json(self) -> dict:
+        """The row as saved: a plain dict with the keys :data:`ROW_FIELDS`, in that order."""
+        return {k: getattr(self, k) for k in ROW_FIELDS}
+
+    @classmethod
+    def from_json(cls, d: dict) -> CompletionRow:
+        """A row as saved (either view-file format; keys a format did not write take their
+        defaults, unreadable numbers are NaN). Raises ValueError for a row without an object,
+        view or known method."""
+        try:
+            name, view, method = str(d["object"]), int(d["view"]), str(d["method"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("a completion row needs an object, a view and a method") from None
+        if not is_method(method):
+            raise ValueError(f"unknown method {method!r}")
+        return cls(
+            object=name,
+            view=view,
+            view_set=str(d.get("view_set") or ""),
+            method=cast(Method, method),
+            kind=str(d.get("kind") or ""),
+            sensor=str(d.get("sensor") or ""),
+            jaccard=_float(d.get("jaccard")),
+            j80=_float(d.get("j80")),
+            hausdorff_mean_mm=_float(d.get("hausdorff_mean_mm")),
+            hausdorff_max_mm=_float(d.get("hausdorff_max_mm")),
+            hausdorff_rms_mm=_float(d.get("hausdorff_rms_mm")),
+            geodesic=_float(d.get("geodesic")),
+            seconds=_float(d.get("seconds")),
+            error=str(d.get("error") or ""),
+            prior=str(d.get("prior") or ""),
+        )
+
+
+def completion_rows(record: dict) -> list[CompletionRow]:
+    """A view record's completion rows (:func:`parse_view_file` has checked them); a row without a
+    view set takes the record's."""
+    rows = [CompletionRow.from_json(r) for r in record["rows"]]
+    return [r if r.view_set else replace(r, view_set=record["view_set"]) for r in rows]
+
+
 def view_stem(name: str, view: int) -> str:
     """The file-name stem of one view: ``ycb/025_mug``, 7 -> ``ycb__025_mug__007``."""
     return f"{name.replace('/', '__')}__{int(view):03d}"
@@ -121,7 +234,7 @@ def samples_file(stem: str) -> str:
 def mesh_files(root: str | Path, stem: str) -> dict[str, str]:
     """Paths relative to ``root`` of the view's meshes that exist: ``truth``, ``points`` and each
     method's completion (all camera frame, metres)."""
-    found = {}
+    found: dict[str, str] = {}
     for key in KINDS:
         rel = f"meshes/{stem}__{key}.ply"
         if (Path(root) / rel).is_file():
@@ -138,7 +251,8 @@ def view_record(root, name: str, view: int, view_set: str, seed: int, rows: list
          "grasps": [one entry per (method, hand), see run.grasp_view]}
 
     ``rows`` may carry the view's ``support_plane`` (as :func:`run.evaluate_view` returns them);
-    it is taken off the rows into the record. ``files`` lists only meshes that exist (a failed
+    it is taken off the rows into the record. The rows are saved as :meth:`CompletionRow.to_json`
+    writes them (every key of :data:`ROW_FIELDS`). ``files`` lists only meshes that exist (a failed
     method has none); paths are relative to ``root``.
     """
     planes = [r.pop("support_plane", None) for r in rows]
@@ -149,12 +263,12 @@ def view_record(root, name: str, view: int, view_set: str, seed: int, rows: list
         "seed": int(seed),
         "support_plane": next((p for p in planes if p is not None), None),
         "files": mesh_files(root, view_stem(name, view)),
-        "rows": rows,
+        "rows": [CompletionRow.from_json(r).to_json() for r in rows],
         "grasps": [],
     }
 
 
-class ViewFileError(ValueError):
+class ViewFileError(ShapeviewerError, ValueError):
     """A view file that cannot be read (half written, corrupt, or not a view file)."""
 
 
@@ -199,6 +313,10 @@ def parse_view_file(text: str, root: str | Path) -> dict:
             or "method" not in r
         ):
             raise ViewFileError("rows of different views, or without a method")
+        try:
+            CompletionRow.from_json({"object": name, "view": view, **r})
+        except ValueError as e:
+            raise ViewFileError(f"a row that cannot be read: {e}") from None
     view_set = head.get("view_set") or (rows[0].get("view_set") if rows else "")
     view_set = str(view_set or catalogue.view_split(name, view))
     stem = view_stem(name, view)

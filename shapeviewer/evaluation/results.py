@@ -1,8 +1,9 @@
 """The results store: the index and read API of a folder written by ``shapeviewer evaluate``.
 
 The folder's files and their formats are :mod:`.records`' (view records in ``views/``, meshes in
-the camera optical frame in metres, grasp files); this module adds ``<root>/index.sqlite`` (WAL
-mode), an SQLite index of the view files for browsing, and reads meshes and points back.
+the camera optical frame in metres, grasp files); :mod:`.results_index` keeps ``<root>/index.sqlite``
+(WAL mode), an SQLite index of the view files for browsing. This module reads that index, the
+tables it sums up (:mod:`.tables`), and meshes and points back.
 
 :meth:`ResultsStore.sync` ingests new and changed view files by (mtime, size), so a store can be
 read while an evaluation is still adding views, and extended by later runs. A file that cannot be
@@ -14,91 +15,39 @@ The read API returns plain dataclasses and dicts; this module never imports vise
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
-import os
-import sqlite3
 import threading
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from ..sim import catalogue
 from . import tables
+from .methods import Method, method_rank
 from .records import (
     GRASP_FIELDS,
-    METHODS,
+    HIGHER_IS_BETTER,
+    METRIC_TITLES,
     METRICS,
     ROW_FIELDS,
-    ViewFileError,
+    CompletionRow,
+    Metric,
     load_grasp_rows,
-    parse_view_file,
 )
+from .results_index import INDEX_NAME, connect, from_db, open_index, sync_index
 from .summaries import CompletionResult, GraspSummary, ObjectSummary, SyncReport, ViewInfo
+from .viewsets import Split
 
 log = logging.getLogger(__name__)
 
-INDEX_NAME = "index.sqlite"
-SCHEMA_VERSION = 3
-# The metrics the browser filters and sorts by, and which way is better.
-HIGHER_IS_BETTER = {
-    "jaccard": True,
-    "j80": True,
-    "hausdorff_mean_mm": False,
-    "hausdorff_max_mm": False,
-    "hausdorff_rms_mm": False,
-    "geodesic": False,
-}
-METRIC_TITLES = {
-    "jaccard": "Jaccard",
-    "j80": "J80 (sampled solids)",
-    "hausdorff_mean_mm": "Hausdorff mean (mm)",
-    "hausdorff_max_mm": "Hausdorff max (mm)",
-    "hausdorff_rms_mm": "Hausdorff RMS (mm)",
-    "geodesic": "Geodesic divergence",
-}
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
-CREATE TABLE IF NOT EXISTS files (path TEXT PRIMARY KEY, mtime_ns INTEGER, size INTEGER, status TEXT,
-                                  message TEXT, object TEXT, view INTEGER);
-CREATE TABLE IF NOT EXISTS objects (name TEXT PRIMARY KEY, split TEXT, source TEXT,
-                                    extent_x REAL, extent_y REAL, extent_z REAL, in_catalogue INTEGER);
-CREATE TABLE IF NOT EXISTS views (object TEXT, view INTEGER, view_set TEXT, seed INTEGER, file TEXT,
-                                  truth TEXT, points TEXT, PRIMARY KEY (object, view));
-CREATE TABLE IF NOT EXISTS completions (object TEXT, view INTEGER, method TEXT, jaccard REAL, j80 REAL,
-                                        hausdorff_mean_mm REAL, hausdorff_max_mm REAL, hausdorff_rms_mm REAL,
-                                        geodesic REAL, seconds REAL, error TEXT, mesh TEXT, prior TEXT,
-                                        PRIMARY KEY (object, view, method));
-CREATE TABLE IF NOT EXISTS grasps (object TEXT, view INTEGER, method TEXT, hand TEXT, file TEXT, n INTEGER,
-                                   joint_error_deg REAL, pose_error_mm REAL, epsilon_planned REAL,
-                                   epsilon_executed REAL, force_closure_planned REAL, lift_success REAL,
-                                   seconds_plan REAL, error TEXT, PRIMARY KEY (object, view, method, hand));
-CREATE INDEX IF NOT EXISTS completions_by_method ON completions (method, object);
-"""
+__all__ = ["HIGHER_IS_BETTER", "INDEX_NAME", "METRIC_TITLES", "Order", "ResultsStore", "read_mesh", "read_points"]
+
+# How :meth:`ResultsStore.objects` orders the index.
+Order = Literal["name", "worst", "best", "views"]
 _VIEW_COLUMNS = "object, view, view_set, seed, file, truth, points"  # ViewInfo's fields
-
-
-# ----------------------------------------------------------------------------------------------
-# Values in and out of SQLite
-
-
-def _as_float(v) -> float:
-    """A value read from a view file as float; None, "", or anything unreadable is NaN."""
-    try:
-        return math.nan if v is None or v == "" else float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def _db(v: float) -> float | None:
-    """SQLite stores NaN as NULL; say so explicitly."""
-    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
-
-
-def _undb(v) -> float:
-    return math.nan if v is None else float(v)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -106,7 +55,7 @@ def _undb(v) -> float:
 
 
 class ResultsStore:
-    """A results folder and its SQLite index (``<root>/index.sqlite``, WAL mode).
+    """A results folder and its SQLite index (``<root>/index.sqlite``, WAL mode; :mod:`.results_index`).
 
     Safe to use from several threads and processes: every call opens its own connection, writes
     happen in one transaction per view file, and WAL lets readers go on while a sync writes.
@@ -123,64 +72,26 @@ class ResultsStore:
         self._local = threading.local()
         self._sync_lock = threading.Lock()  # one sync at a time per process (SQLite serialises processes)
         self._catalogue_done = False
-        with self._connect() as db:
-            db.execute("PRAGMA journal_mode=WAL")
-            version = None
-            try:
-                row = db.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
-                version = row and int(row[0])
-            except sqlite3.OperationalError:  # a new index
-                pass
-            if version not in (None, SCHEMA_VERSION):  # an older index: it is only a cache, rebuild it
-                for table in ("meta", "files", "objects", "views", "completions", "grasps"):
-                    db.execute(f"DROP TABLE IF EXISTS {table}")
-            db.executescript(_SCHEMA)
-            db.execute("INSERT OR REPLACE INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
+        open_index(self.index_path)
         if sync:
             self.sync()
-
-    def _connect(self) -> sqlite3.Connection:
-        db = sqlite3.connect(self.index_path, timeout=30.0, isolation_level=None)
-        db.execute("PRAGMA busy_timeout=30000")
-        return db
 
     def _read(self, sql: str, args: Iterable = ()) -> list[tuple]:
         # One read connection per thread (sqlite3 connections stay in their thread); in autocommit
         # mode every query is its own WAL read transaction, so it sees the latest committed sync.
         db = getattr(self._local, "db", None)
         if db is None:
-            db = self._local.db = self._connect()
+            db = self._local.db = connect(self.index_path)
         return db.execute(sql, tuple(args)).fetchall()
 
-    # ------------------------------------------------------------------------------------------
-    # Writing the index
-
     def sync(self) -> SyncReport:
-        """Ingest new and changed ``views/*.json`` (by mtime and size) and forget deleted ones."""
+        """Ingest new and changed ``views/*.json`` (by mtime and size) and forget deleted ones
+        (:func:`.results_index.sync_index`)."""
         with self._sync_lock:
-            report = SyncReport()
-            db = self._connect()
+            db = connect(self.index_path)
             try:
-                if not self._catalogue_done:
-                    self._sync_catalogue(db)
-                    self._catalogue_done = True
-                known = {p: (m, s, st) for p, m, s, st in db.execute("SELECT path, mtime_ns, size, status FROM files")}
-                seen = set()
-                views_dir = self.root / "views"
-                for path in sorted(views_dir.glob("*.json")) if views_dir.is_dir() else []:
-                    rel = path.relative_to(self.root).as_posix()
-                    seen.add(rel)
-                    try:
-                        st = path.stat()
-                    except FileNotFoundError:  # replaced or deleted while we looked
-                        continue
-                    old = known.get(rel)
-                    if old is not None and old[0] == st.st_mtime_ns and old[1] == st.st_size:
-                        continue
-                    self._ingest(db, rel, path, st, old, report)
-                for rel in set(known) - seen:
-                    self._forget(db, rel)
-                    report.removed += 1
+                report = sync_index(db, self.root, with_catalogue=not self._catalogue_done)
+                self._catalogue_done = True
             finally:
                 db.close()
             if report.changed or report.skipped:
@@ -194,139 +105,11 @@ class ResultsStore:
                 )
             return report
 
-    def _sync_catalogue(self, db: sqlite3.Connection) -> None:
-        """Put every catalogue object in the objects table (the index lists objects without results too)."""
-        try:
-            entries = catalogue.catalogue()
-        except Exception as e:  # no catalogue (missing packages): list the objects the results know
-            log.warning("object catalogue unavailable (%s); listing only objects with results", e)
-            return
-        key = hashlib.sha1("\n".join(f"{e.name} {e.split} {e.extents}" for e in entries).encode()).hexdigest()
-        row = db.execute("SELECT value FROM meta WHERE key='catalogue'").fetchone()
-        if row and row[0] == key:
-            return
-        db.execute("BEGIN IMMEDIATE")
-        try:
-            db.executemany(
-                "INSERT OR REPLACE INTO objects VALUES (?, ?, ?, ?, ?, ?, 1)",
-                [(e.name, e.split, e.source, *map(float, e.extents)) for e in entries],
-            )
-            db.execute("INSERT OR REPLACE INTO meta VALUES ('catalogue', ?)", (key,))
-            db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
-
-    def _ingest(
-        self, db: sqlite3.Connection, rel: str, path: Path, st: os.stat_result, old, report: SyncReport
-    ) -> None:
-        try:
-            parsed = parse_view_file(path.read_text(), self.root)
-        except (OSError, UnicodeDecodeError, ViewFileError) as e:
-            why = str(e)
-            if old is None or old[2] != "bad":  # warn once per version of the file
-                log.warning("results: skipping %s: %s (retried when the file changes)", rel, why)
-            report.skipped.append((rel, why))
-            # Remember the bad version (so it is not re-read until it changes); rows of an earlier
-            # good version stay: a view being rewritten keeps showing its last complete results.
-            db.execute(
-                "INSERT INTO files (path, mtime_ns, size, status, message) VALUES (?, ?, ?, 'bad', ?) "
-                "ON CONFLICT(path) DO UPDATE SET mtime_ns=excluded.mtime_ns, size=excluded.size, "
-                "status='bad', message=excluded.message",
-                (rel, st.st_mtime_ns, st.st_size, why),
-            )
-            return
-        name, view, files = parsed["object"], parsed["view"], parsed["files"]
-        db.execute("BEGIN IMMEDIATE")
-        try:
-            prev = db.execute("SELECT object, view FROM files WHERE path=?", (rel,)).fetchone()
-            had_rows = bool(prev and prev[0] is not None)
-            if had_rows and (prev[0], prev[1]) != (name, view):
-                self._delete_view(db, prev[0], prev[1])
-            self._delete_view(db, name, view)
-            db.execute(
-                "INSERT OR IGNORE INTO objects VALUES (?, ?, ?, NULL, NULL, NULL, 0)",
-                (name, catalogue.model_split(name), name.partition("/")[0] if "/" in name else "unknown"),
-            )
-            db.execute(
-                "INSERT INTO views VALUES (?, ?, ?, ?, ?, ?, ?)",
-                (name, view, parsed["view_set"], parsed["seed"], rel, files.get("truth"), files.get("points")),
-            )
-            completions = {}
-            for r in parsed["rows"]:
-                m = str(r["method"])
-                completions[m] = (
-                    name,
-                    view,
-                    m,
-                    *[_db(_as_float(r.get(k))) for k in (*METRICS, "seconds")],
-                    str(r.get("error") or ""),
-                    files.get(m),
-                    str(r.get("prior") or ""),
-                )
-            slots = ", ".join("?" * (7 + len(METRICS)))
-            db.executemany(f"INSERT INTO completions VALUES ({slots})", completions.values())
-            grasps = {}
-            for g in parsed["grasps"]:
-                method, hand = str(g.get("method", "")), str(g.get("hand", ""))
-                gfile = g.get("file")
-                gfile = gfile if isinstance(gfile, str) and (self.root / gfile).is_file() else None
-                n = g.get("n")
-                grasps[(method, hand)] = (
-                    name,
-                    view,
-                    method,
-                    hand,
-                    gfile,
-                    int(n) if isinstance(n, (int, float)) else 0,
-                    *[_db(_as_float(g.get(k))) for k in GRASP_FIELDS[1:]],
-                    str(g.get("error") or ""),
-                )
-            db.executemany("INSERT INTO grasps VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", grasps.values())
-            db.execute(
-                "INSERT OR REPLACE INTO files VALUES (?, ?, ?, 'ok', '', ?, ?)",
-                (rel, st.st_mtime_ns, st.st_size, name, view),
-            )
-            self._bump(db)
-            db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
-        if had_rows:
-            report.updated += 1
-        else:  # new, or readable for the first time
-            report.added += 1
-
-    @staticmethod
-    def _bump(db: sqlite3.Connection) -> None:
-        db.execute(
-            "INSERT INTO meta VALUES ('generation', '1') ON CONFLICT(key) DO UPDATE SET "
-            "value = CAST(value AS INTEGER) + 1"
-        )
-
     def generation(self) -> int:
         """A number that changes whenever any store on this folder (any thread or process) changed the
         views: readers compare it to know when to re-read."""
         rows = self._read("SELECT value FROM meta WHERE key='generation'")
         return int(rows[0][0]) if rows else 0
-
-    @staticmethod
-    def _delete_view(db: sqlite3.Connection, name: str, view: int) -> None:
-        for table in ("views", "completions", "grasps"):
-            db.execute(f"DELETE FROM {table} WHERE object=? AND view=?", (name, view))
-
-    def _forget(self, db: sqlite3.Connection, rel: str) -> None:
-        db.execute("BEGIN IMMEDIATE")
-        try:
-            row = db.execute("SELECT object, view FROM files WHERE path=?", (rel,)).fetchone()
-            if row and row[0] is not None:
-                self._delete_view(db, row[0], row[1])
-            db.execute("DELETE FROM files WHERE path=?", (rel,))
-            self._bump(db)
-            db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
 
     # ------------------------------------------------------------------------------------------
     # Reading: objects, views, completions, grasps
@@ -346,11 +129,11 @@ class ResultsStore:
     def objects(
         self,
         search: str = "",
-        split: str | None = None,
+        split: Split | None = None,
         with_results: bool = True,
-        method: str = "Ours-fast",
-        metric: str = "jaccard",
-        order: str = "name",
+        method: Method = "Ours-fast",
+        metric: Metric = "jaccard",
+        order: Order = "name",
         metric_range: tuple[float, float] | None = None,
     ) -> list[ObjectSummary]:
         """The object index, filtered and ordered.
@@ -372,7 +155,7 @@ class ResultsStore:
         for name, m, n_failed, *vals in self._read(
             f"SELECT object, method, SUM(error != ''), {cols} FROM completions GROUP BY object, method"
         ):
-            means.setdefault(name, {})[m] = dict(zip((*METRICS, "seconds"), map(_undb, vals)))
+            means.setdefault(name, {})[m] = dict(zip((*METRICS, "seconds"), map(from_db, vals)))
             failed.setdefault(name, {})[m] = int(n_failed or 0)
         n_views = dict(self._read("SELECT object, COUNT(*) FROM views GROUP BY object"))
         needle = search.strip().lower()
@@ -390,7 +173,7 @@ class ResultsStore:
                 name,
                 sp,
                 source,
-                (_undb(ex), _undb(ey), _undb(ez)),
+                (from_db(ex), from_db(ey), from_db(ez)),
                 int(n_views.get(name, 0)),
                 means.get(name, {}),
                 failed.get(name, {}),
@@ -434,7 +217,7 @@ class ResultsStore:
         return ViewInfo(*rows[0])
 
     def completions(self, name: str, view: int) -> list[CompletionResult]:
-        """Each method's completion of a view, in :data:`evaluate.METHODS` order (others after)."""
+        """Each method's completion of a view, in :data:`.methods.ALL_METHODS` order."""
         rows = self._read(
             f"SELECT method, {', '.join(METRICS)}, seconds, error, mesh, prior FROM completions"
             " WHERE object=? AND view=?",
@@ -442,28 +225,28 @@ class ResultsStore:
         )
         out = [
             CompletionResult(
-                m, **dict(zip((*METRICS, "seconds"), map(_undb, vals))), error=err or "", mesh=mesh, prior=prior or ""
+                m, **dict(zip((*METRICS, "seconds"), map(from_db, vals))), error=err or "", mesh=mesh, prior=prior or ""
             )
             for m, *vals, err, mesh, prior in rows
         ]
-        rank = {m: i for i, m in enumerate(METHODS)}
-        return sorted(out, key=lambda c: (rank.get(c.method, len(rank)), c.method))
+        return sorted(out, key=lambda c: (method_rank(c.method), c.method))
 
     def grasps(self, name: str, view: int) -> list[GraspSummary]:
-        """Grasp summaries of a view (one per method and hand), in :data:`evaluate.METHODS` order."""
+        """Grasp summaries of a view (one per method and hand), in :data:`.methods.ALL_METHODS` order."""
         rows = self._read(
             f"SELECT method, hand, file, {', '.join(GRASP_FIELDS)}, error FROM grasps WHERE object=? AND view=?",
             (name, int(view)),
         )
         out = [
-            GraspSummary(m, h, f, int(n or 0), **dict(zip(GRASP_FIELDS[1:], map(_undb, vals))), error=err or "")
+            GraspSummary(m, h, f, int(n or 0), **dict(zip(GRASP_FIELDS[1:], map(from_db, vals))), error=err or "")
             for m, h, f, n, *vals, err in rows
         ]
-        rank = {m: i for i, m in enumerate(METHODS)}
-        return sorted(out, key=lambda g: (rank.get(g.method, len(rank)), g.method, g.hand))
+        return sorted(out, key=lambda g: (method_rank(g.method), g.method, g.hand))
 
-    def rows(self, names: Iterable[str] | None = None) -> list[dict]:
-        """Completion rows in the evaluation's format (:data:`evaluate.ROW_FIELDS`, NaN metrics on failure)."""
+    def rows(self, names: Iterable[str] | None = None) -> list[CompletionRow]:
+        """The completion rows of the objects ``names`` (None: all), as the evaluation writes them
+        (NaN metrics on failure), by object, view and method. ``kind`` is the catalogue's shape kind;
+        ``sensor`` is not indexed ("")."""
         sql = (
             f"SELECT c.object, c.view, v.view_set, c.method, {', '.join('c.' + k for k in METRICS)}, c.seconds, "
             "c.error, c.prior FROM completions c JOIN views v ON v.object=c.object AND v.view=c.view"
@@ -473,14 +256,22 @@ class ResultsStore:
         for r in self._read(sql + " ORDER BY c.object, c.view"):
             if wanted is not None and r[0] not in wanted:
                 continue
-            d = dict(zip(("object", "view", "view_set", "method", *METRICS, "seconds", "error", "prior"), r))
-            d.update(kind=catalogue.shape_kind(d["object"]), sensor="")
-            for k in (*METRICS, "seconds"):
-                d[k] = _undb(d[k])
-            d["error"], d["prior"] = d["error"] or "", d["prior"] or ""
-            out.append(d)
-        rank = {m: i for i, m in enumerate(METHODS)}
-        out.sort(key=lambda d: (d["object"], d["view"], rank.get(d["method"], len(rank))))
+            name, view, view_set, method, *vals, error, prior = r
+            out.append(
+                CompletionRow.from_json(
+                    {
+                        "object": name,
+                        "view": view,
+                        "view_set": view_set,
+                        "method": method,
+                        "kind": catalogue.shape_kind(name),
+                        **dict(zip((*METRICS, "seconds"), map(from_db, vals))),
+                        "error": error,
+                        "prior": prior,
+                    }
+                )
+            )
+        out.sort(key=lambda r: (r.object, r.view, method_rank(r.method)))
         return out
 
     # ------------------------------------------------------------------------------------------
@@ -505,7 +296,7 @@ class ResultsStore:
             out.setdefault(view_set, {})[method] = {
                 "n": int(n or 0),
                 "failed": int(failed or 0),
-                **dict(zip(means, map(_undb, vals))),
+                **dict(zip(means, map(from_db, vals))),
             }
         return out
 
@@ -529,7 +320,7 @@ class ResultsStore:
                     "hand": hand,
                     "file": gfile or "",
                     "n": int(n or 0),
-                    "seconds_plan": _undb(seconds_plan),
+                    "seconds_plan": from_db(seconds_plan),
                     "error": error or "",
                 }
             )
@@ -631,7 +422,7 @@ class ResultsStore:
         return tables.objects_csv(objects)
 
     def rows_csv(self, names: Iterable[str] | None = None) -> str:
-        return tables.csv_text(ROW_FIELDS, self.rows(names))
+        return tables.csv_text(ROW_FIELDS, (r.to_json() for r in self.rows(names)))
 
 
 def read_mesh(path: Path):

@@ -1,16 +1,13 @@
-"""The paper's tables: its figures, our summaries of a results folder, and every rendering of them.
+"""The paper's tables: our summaries of a results folder, and their renderings beside the paper's
+figures (:mod:`.paper`).
 
-* Figures of the paper (SPEC §7-8): :data:`PAPER` (Tables I-III), :data:`PAPER_GRASP` (Table IV),
-  :data:`PAPER_LIFT` (Table V), and the one map from our methods to the paper's columns,
-  :data:`PAPER_COLUMN`: the paper has one "Ours", compared with our detailed mesh (Algorithm 1)
-  only; Hull and Ours-fast have no paper figure.
 * Summaries: :func:`summarize` (completion rows -> means per view set and method) and
   :func:`summarize_grasps` (grasp entries and rows -> Tables IV/V cells).
 * Renderings: Tables I-III (:func:`completion_tables_markdown`), per shape kind
   (:func:`kind_table_markdown`), Tables IV/V (:func:`grasp_tables_markdown`) and Table V per shape
-  kind (:func:`kind_grasp_table_markdown`), the Dataset tab's
-  compact panel (:func:`panel_markdown`), every cell as CSV (:func:`write_tables_csv`) and the
-  results store's CSV exports (:func:`view_csv`, :func:`objects_csv`).
+  kind (:func:`kind_grasp_table_markdown`), every cell as CSV (:func:`write_tables_csv`) and the
+  results store's CSV exports (:func:`view_csv`, :func:`objects_csv`). The Dataset tab's compact
+  panel is :func:`shapeviewer.viewer.dataset.summary.panel_markdown`.
 
 Units: Hausdorff distances and pose errors in mm, joint errors in degrees, times in seconds,
 shares (lift success, force closure) as fractions, shown as percentages.
@@ -21,86 +18,23 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from ..fileio import atomic_write
-from .records import GRASP_FIELDS, GRASP_MEANS, GRASP_TABLE_METHODS, METHODS, METRICS
+from .methods import GRASP_TABLE_METHODS, METHODS
+from .paper import PAPER, PAPER_GRASP, PAPER_METHODS, paper_figure, paper_grasp, paper_lift
+from .records import GRASP_FIELDS, GRASP_MEANS, METRICS, CompletionRow, Metric
 from .viewsets import SET_TITLES, VIEW_SETS
 
-# SPEC §7: the paper's figures, {metric: {view_set: (Partial, Mirror, Ours)}}.
-PAPER = {
-    "jaccard": {
-        "training_view": (0.118, 0.233, 0.777),
-        "holdout_view": (0.131, 0.239, 0.749),
-        "holdout_model": (0.093, 0.192, 0.650),
-    },
-    "hausdorff_mean_mm": {
-        "training_view": (11.4, 7.5, 3.6),
-        "holdout_view": (12.3, 8.2, 4.0),
-        "holdout_model": (13.6, 10.7, 5.9),
-    },
-    "geodesic": {
-        "training_view": (0.377, 0.291, 0.087),
-        "holdout_view": (0.494, 0.337, 0.093),
-        "holdout_model": (0.341, 0.280, 0.141),
-    },
-}
-# SPEC §8: the paper's Table IV, {quantity: {view_set: (Partial, Mirror, Ours)}}. SPEC gives the
-# training-view and holdout-model rows only; the holdout-view row is left blank rather than guessed.
-PAPER_GRASP = {
-    "joint_error_deg": {"training_view": (6.09, 4.20, 1.75), "holdout_model": (7.59, 5.82, 4.56)},
-    "pose_error_mm": {"training_view": (16.0, 11.5, 4.3), "holdout_model": (18.3, 15.0, 13.2)},
-}
-# SPEC §8: the paper's Table V, real-robot grasp success (15 objects), Partial / Mirror / Ours.
-PAPER_LIFT = (0.714, 0.733, 0.933)
-# Our method -> column of the paper's (Partial, Mirror, Ours) figures. The paper's one "Ours" is
-# its full pipeline (CNN + Algorithm 1), i.e. our Ours-detailed; methods not listed have none.
-PAPER_COLUMN = {"Partial": 0, "Mirror": 1, "Ours-detailed": 2}
-PAPER_METHODS = tuple(PAPER_COLUMN)  # ours beside the paper's columns, in the paper's order
-TABLES = (
+TABLES: tuple[tuple[str, Metric, str], ...] = (
     ("I", "jaccard", "Jaccard similarity (higher is better)"),
     ("II", "hausdorff_mean_mm", "Hausdorff distance, mean, mm (lower is better)"),
     ("III", "geodesic", "Geodesic divergence (lower is better)"),
     ("J80", "j80", "Jaccard of the solids sampled at 80^3 points, J80 (higher is better)"),
 )
-# The panel's short labels (a narrow side panel).
-SHORT_METHOD = {
-    "Partial": "Part.",
-    "Mirror": "Mirr.",
-    "Hull": "Hull",
-    "Ours-fast": "Fast",
-    "Ours-detailed": "Det.",
-    "Ours-envelope": "Env.",
-}
-SHORT_SET = {
-    "training_view": "train",
-    "holdout_view": "h. view",
-    "holdout_model": "h. model",
-    "tabletop_train_object": "table",
-    "tabletop_holdout_model": "table h. model",
-}
-
-
-def _paper_cell(row, method: str) -> float:
-    col = PAPER_COLUMN.get(method)
-    return math.nan if row is None or col is None else row[col]
-
-
-def paper_figure(metric: str, view_set: str, method: str) -> float:
-    """The paper's Table I-III figure for a cell (NaN where the paper has none)."""
-    return _paper_cell(PAPER.get(metric, {}).get(view_set), method)
-
-
-def paper_grasp(quantity: str, view_set: str, method: str) -> float:
-    """The paper's Table IV figure (``joint_error_deg`` or ``pose_error_mm``) for a cell, or NaN."""
-    return _paper_cell(PAPER_GRASP.get(quantity, {}).get(view_set), method)
-
-
-def paper_lift(method: str) -> float:
-    """The paper's Table V real-robot lift success of a method (a fraction), or NaN."""
-    return _paper_cell(PAPER_LIFT, method)
 
 
 def robust_label(method: str) -> str:
@@ -130,7 +64,7 @@ def fmt_share(v, digits: int = 1) -> str:
     return fmt(v, digits, 100.0, "%")
 
 
-def csv_text(fields: tuple[str, ...], rows: list[dict]) -> str:
+def csv_text(fields: tuple[str, ...], rows: Iterable[dict]) -> str:
     """Rows as CSV text with a header of ``fields`` (other keys ignored, missing ones blank)."""
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
@@ -149,16 +83,16 @@ def nanmean(values) -> float:
     return float(np.mean(vals)) if vals else math.nan
 
 
-def summarize(rows: list[dict]) -> dict:
+def summarize(rows: Sequence[CompletionRow]) -> dict:
     """``{view_set: {method: {metric: mean, "seconds": mean, "n": ok rows, "failed": rows}}}``:
     means over the completion rows without error (NaN where none)."""
     out: dict = {}
     for s in VIEW_SETS:
         out[s] = {}
         for m in METHODS:
-            sel = [r for r in rows if r["view_set"] == s and r["method"] == m]
-            ok = [r for r in sel if not r["error"]]
-            cell = {k: (float(np.mean([r[k] for r in ok])) if ok else math.nan) for k in (*METRICS, "seconds")}
+            sel = [r for r in rows if r.view_set == s and r.method == m]
+            ok = [r for r in sel if r.ok]
+            cell = {k: (float(np.mean([getattr(r, k) for r in ok])) if ok else math.nan) for k in (*METRICS, "seconds")}
             cell.update(n=len(ok), failed=len(sel) - len(ok))
             out[s][m] = cell
     return out
@@ -254,7 +188,7 @@ def completion_tables_markdown(summary: dict, n_per_set: int | None = None, seed
     if n_per_set is not None:
         lines += [
             f"{n_per_set} views per set, seed {seed}. Our means, then the paper's figures (theirs, on their "
-            'data, SPEC §7; the paper has one "Ours"). Means over views where the method succeeded; '
+            'data; the paper has one "Ours"). Means over views where the method succeeded; '
             "n = successes/views.",
             "",
         ]
@@ -289,10 +223,10 @@ def completion_tables_markdown(summary: dict, n_per_set: int | None = None, seed
     return "\n".join(lines)
 
 
-def kind_table_markdown(rows: list[dict]) -> str:
+def kind_table_markdown(rows: Sequence[CompletionRow]) -> str:
     """J80 and mean surface distance (mm) per view set and shape kind (:func:`catalogue.shape_kind`),
     so that a weak family shows; empty when the rows carry no kinds."""
-    kinds = sorted({r.get("kind", "") for r in rows} - {""})
+    kinds = sorted({r.kind for r in rows} - {""})
     if not kinds:
         return ""
     lines = [
@@ -302,22 +236,20 @@ def kind_table_markdown(rows: list[dict]) -> str:
     ]
     for s in VIEW_SETS:
         for k in kinds:
-            sel = [r for r in rows if r["view_set"] == s and r.get("kind") == k]
+            sel = [r for r in rows if r.view_set == s and r.kind == k]
             if not sel:
                 continue
             cells = []
             for m in METHODS:
-                ok = [r for r in sel if r["method"] == m and not r["error"]]
+                ok = [r for r in sel if r.method == m and r.ok]
                 cells.append(
-                    f"{fmt_metric(nanmean(r['j80'] for r in ok), 'j80')} / "
-                    f"{fmt_metric(nanmean(r['hausdorff_mean_mm'] for r in ok), 'hausdorff_mean_mm')}"
+                    f"{fmt_metric(nanmean(r.j80 for r in ok), 'j80')} / "
+                    f"{fmt_metric(nanmean(r.hausdorff_mean_mm for r in ok), 'hausdorff_mean_mm')}"
                     if ok
                     else "–"
                 )
             lines.append(
-                f"| {SET_TITLES[s]} | {k} | {len({(r['object'], r['view']) for r in sel})} | "
-                + " | ".join(cells)
-                + " |"
+                f"| {SET_TITLES[s]} | {k} | {len({(r.object, r.view) for r in sel})} | " + " | ".join(cells) + " |"
             )
     return "\n".join(lines + [""])
 
@@ -335,10 +267,11 @@ def grasp_tables_markdown(g_summary: dict) -> str:
             "",
             "Grasps planned on each completion (the paper's views: no table, the object floating as rendered; "
             "tabletop views: on the table the segmentation found, in its frame), every planned grasp "
-            "executed on the true mesh with the paper's protocol (SPEC §8) and lifted in simulation. Means "
+            "executed on the true mesh with the protocol of the authors' GraspIt evaluation and lifted in "
+            "simulation. Means "
             "over all executed grasps of the view set, shown as mean / median (the paper reports means); "
             "n = grasps (views without a grasp: see the quality table). Paper figures: theirs, on their data; "
-            'their "Ours" beside our Ours-detailed; SPEC §8 has no holdout-view row for Table IV.',
+            'their "Ours" beside our Ours-detailed; no holdout-view row of Table IV is recorded.',
             "",
         ]
         for key, title, digits in (
@@ -370,14 +303,14 @@ def grasp_tables_markdown(g_summary: dict) -> str:
             "",
             *_header(["View set", *methods, *map(robust_label, robust)]),
         ]
-        for s in (*(s for s in VIEW_SETS if by_set[s]), "all"):
+        for row_set in (*(s for s in VIEW_SETS if by_set[s]), "all"):
             cells = [
                 f"{fmt_share(c['lift_success'])} / {fmt_share(c[best])} (n={c['grasps']}/{c['views']})"
-                if (c := by_set[s].get(m))
+                if (c := by_set[row_set].get(m))
                 else "–"
                 for m, best in columns
             ]
-            lines.append(f"| {SET_TITLES.get(s, 'All views')} | " + " | ".join(cells) + " |")
+            lines.append(f"| {SET_TITLES.get(row_set, 'All views')} | " + " | ".join(cells) + " |")
         paper = [fmt_share(paper_lift(m)) for m in methods] + [fmt_share(paper_lift(robust_label(m))) for m in robust]
         lines += [
             "| paper, real robot (15 objects) | " + " | ".join(paper) + " |",
@@ -430,7 +363,7 @@ def grasp_tables_markdown(g_summary: dict) -> str:
     return "\n".join(lines)
 
 
-def kind_grasp_table_markdown(records: list[dict], rows: list[dict], grasp_rows: list[dict]) -> str:
+def kind_grasp_table_markdown(records: list[dict], rows: Sequence[CompletionRow], grasp_rows: list[dict]) -> str:
     """The best grasp's lift success per shape kind and method, every view set pooled, for each
     hand: Table V's "best grasp" per kind, so that a family the grasps fail on shows.
 
@@ -438,7 +371,7 @@ def kind_grasp_table_markdown(records: list[dict], rows: list[dict], grasp_rows:
     their completion rows, which carry each object's ``kind``; ``grasp_rows``: their grasps. A view
     whose planner found no grasp counts as a failed lift; entries with an error are left out.
     Empty when no grasp entry or no kind is known."""
-    kind_of = {r["object"]: r["kind"] for r in rows if r.get("kind")}
+    kind_of = {r.object: r.kind for r in rows if r.kind}
     best, best_robust = (best_grasp_lifts(grasp_rows, rank) for rank in ("rank", "robust_rank"))
     entries = [(rec, g) for rec in records for g in rec.get("grasps", []) if not g["error"]]
     if not kind_of or not entries:
@@ -472,67 +405,6 @@ def kind_grasp_table_markdown(records: list[dict], rows: list[dict], grasp_rows:
             "",
         ]
     return "\n".join(lines)
-
-
-def panel_markdown(summary: dict, grasps: dict) -> str:
-    """Per-set means (paper Tables I–III, and IV when grasps exist), compact enough for a side panel.
-
-    ``summary``: :func:`summarize`'s format; ``grasps``: :meth:`ResultsStore.grasp_summary`'s
-    (``{view_set: {method: {"joint_error_deg", "pose_error_mm", "lift_success", ...}}}``, means
-    over views). The "paper" column is the paper's "Ours" (theirs, on their data, SPEC §7-8).
-    """
-    counts = {s: max(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS) for s in VIEW_SETS if s in summary}
-    sets = [s for s, n in counts.items() if n]
-    out = [
-        "Views per set: "
-        + ", ".join(f"{SET_TITLES[s]} ({SHORT_SET[s]}) {counts[s]}" for s in sets)
-        + ". Means over the views where the method succeeded.",
-        "",
-    ]
-    for number, metric, title in (
-        ("I", "jaccard", "Jaccard ↑"),
-        ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
-        ("III", "geodesic", "Geodesic divergence ↓"),
-    ):
-        out += [
-            f"**Table {number}: {title}**",
-            "",
-            "| set | " + " | ".join(SHORT_METHOD[m] for m in METHODS) + " | paper |",
-            "|---|" + "---:|" * (len(METHODS) + 1),
-        ]
-        for s in sets:
-            cells = [fmt_metric(summary[s][m][metric] if summary[s][m]["n"] else None, metric) for m in METHODS]
-            out.append(
-                f"| {SHORT_SET[s]} | "
-                + " | ".join(cells)
-                + f" | {fmt_metric(paper_figure(metric, s, 'Ours-detailed'), metric)} |"
-            )
-        out.append("")
-    if not grasps:
-        out.append("_Table IV: no grasp results in this store._")
-        return "\n".join(out)
-    out += [
-        "**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
-        "errors (mean), share lifted; paper: joint ° / pose mm",
-        "",
-        "| method | joint ° | pose mm | lift | paper |",
-        "|---|---:|---:|:---:|---:|",
-    ]
-    for s in VIEW_SETS:
-        rows = []
-        for m in GRASP_TABLE_METHODS:
-            c = grasps.get(s, {}).get(m)
-            if not c:
-                continue
-            joint, pose = paper_grasp("joint_error_deg", s, m), paper_grasp("pose_error_mm", s, m)
-            paper = "–" if math.isnan(joint) else f"{fmt(joint, 1)} / {fmt(pose, 0)}"
-            rows.append(
-                f"| {SHORT_METHOD[m]} | {fmt(c['joint_error_deg'], 1)} | {fmt(c['pose_error_mm'], 1)} | "
-                f"{fmt_share(c['lift_success'], 0)} | {paper} |"
-            )
-        if rows:
-            out += [f"| _{SET_TITLES[s]}_ | | | | |", *rows]
-    return "\n".join(out)
 
 
 # ----------------------------------------------------------------------------------------------

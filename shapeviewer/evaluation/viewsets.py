@@ -16,16 +16,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 import trimesh
 
 from ..sim import catalogue
 
-PAPER_SETS = ("training_view", "holdout_view", "holdout_model")
-TABLETOP_SETS = ("tabletop_train_object", "tabletop_holdout_model")
-VIEW_SETS = PAPER_SETS + TABLETOP_SETS
-SET_TITLES = {
+PaperSet = Literal["training_view", "holdout_view", "holdout_model"]
+TabletopSet = Literal["tabletop_train_object", "tabletop_holdout_model"]
+ViewSet = PaperSet | TabletopSet
+# The catalogue's model splits (:func:`catalogue.model_split`) the view sets draw their objects from.
+Split = Literal["train", "holdout_model"]
+Views = Literal["paper", "tabletop"]  # which kind of test views (``shapeviewer evaluate --views``)
+PAPER_SETS: tuple[PaperSet, ...] = get_args(PaperSet)
+TABLETOP_SETS: tuple[TabletopSet, ...] = get_args(TabletopSet)
+VIEW_SETS: tuple[ViewSet, ...] = PAPER_SETS + TABLETOP_SETS
+SET_TITLES: dict[str, str] = {
     "training_view": "Training Views",
     "holdout_view": "Holdout Views",
     "holdout_model": "Holdout Models",
@@ -53,14 +60,14 @@ class EvalView:
     sensor: str = "kinect"
 
 
-def set_names(views: str) -> tuple[str, ...]:
+def set_names(views: Views) -> tuple[ViewSet, ...]:
     """The view sets of a kind of test views (``paper`` or ``tabletop``)."""
     if views not in ("paper", "tabletop"):
         raise ValueError(f"unknown views {views!r} (use 'paper' or 'tabletop')")
     return PAPER_SETS if views == "paper" else TABLETOP_SETS
 
 
-def sample_views(n_per_set: int = 50, seed: int = 0, views: str = "paper") -> list[tuple[str, int, str]]:
+def sample_views(n_per_set: int = 50, seed: int = 0, views: Views = "paper") -> list[tuple[str, int, str]]:
     """A seeded sample of ``n_per_set`` distinct views per view set: ``(object, view, view_set)``."""
     return _sample_paper(n_per_set, seed) if set_names(views) == PAPER_SETS else _sample_tabletop(n_per_set, seed)
 
@@ -98,7 +105,8 @@ def _sample_tabletop(n_per_set: int, seed: int) -> list[tuple[str, int, str]]:
     """Per set: kinds in turn (a seeded order), an object of that kind, then a fresh view number."""
     rng = np.random.default_rng([seed, 5])
     out: list[tuple[str, int, str]] = []
-    for view_set, split in zip(TABLETOP_SETS, ("train", "holdout_model")):
+    splits: tuple[Split, ...] = get_args(Split)
+    for view_set, split in zip(TABLETOP_SETS, splits):
         by_kind: dict[str, list[str]] = {}
         for e in catalogue.catalogue():
             if e.split == split and TABLETOP_SIZE[0] <= max(e.extents) <= TABLETOP_SIZE[1]:

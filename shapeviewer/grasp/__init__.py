@@ -1,4 +1,4 @@
-"""Grasps with the Barrett BH8-280 and the Franka Panda hand (SPEC section 8).
+"""Grasps with the Barrett BH8-280 and the Franka Panda hand (the paper's Tables IV and V).
 
 - :mod:`shapeviewer.grasp.hands`: hand descriptions (URDF, dofs, coupling, fingers), forward
   kinematics and visual meshes in the palm frame, loading a hand into a pybullet client.

@@ -1,4 +1,4 @@
-"""Executing planned grasps on the true object (SPEC section 8), then lifting it.
+"""Executing planned grasps on the true object (the paper's Table IV protocol), then lifting it.
 
 Frames: world (table top z = 0, +z up) and palm (see :mod:`shapeviewer.grasp.hands`). Units: metres
 and radians, except the reported errors: joint error in degrees (millimetres for prismatic
@@ -78,10 +78,11 @@ def execute_grasps(
     progress: ProgressFn | None = None,
     cancel: CancelFn | None = None,
 ) -> list[ExecutionResult]:
-    """Execute every grasp on ``true_mesh_world`` (world frame) with the protocol of SPEC
-    section 8, in one kinematic world per hand; with ``lift``, also run :func:`lift_test` on each
-    executed state. ``progress(fraction)`` reports 0..1 (the lift tests are most of the work);
-    ``cancel()`` is asked before each lift test, and those not run keep ``lift`` None."""
+    """Execute every grasp on ``true_mesh_world`` (world frame) with the protocol of the authors'
+    GraspIt evaluation (:func:`~.plan.approach_and_close`), in one kinematic world per hand; with
+    ``lift``, also run :func:`lift_test` on each executed state. ``progress(fraction)`` reports 0..1
+    (the lift tests are most of the work); ``cancel()`` is asked before each lift test, and those not
+    run keep ``lift`` None."""
     by_index: dict[int, ExecutionResult] = {}
     com = centre_of_mass(true_mesh_world)
     radius = max_radius(true_mesh_world.vertices, com)

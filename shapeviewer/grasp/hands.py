@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-import pybullet as p
 import trimesh
 from scipy.spatial.transform import Rotation
 
 from shapeviewer.geometry import concatenate_meshes, pose_to_pq, pq_to_pose
+
+from ..runtime.bullet import pybullet as p
 
 HANDS_DIR = Path(__file__).resolve().parents[2] / "static_assets" / "hands"
 HAND_NAMES = ("barrett", "panda")

@@ -17,12 +17,13 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 import trimesh
 
 from shapeviewer.grasp.hands import get_hand, set_joint_positions
 from shapeviewer.grasp.state import HandState, LiftResult
 from shapeviewer.grasp.world import GraspWorld
+
+from ..runtime.bullet import pybullet as p
 
 # Lift test timing (s) at pybullet's default 240 Hz step.
 SETTLE_SECONDS = 0.1  # the fingers squeeze before the hand moves

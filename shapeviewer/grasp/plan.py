@@ -1,4 +1,4 @@
-"""GraspIt-style grasp planning on one object mesh (SPEC section 8).
+"""GraspIt-style grasp planning on one object mesh (as the authors' GraspIt plugin planned).
 
 Frames: the world frame has the table top as z = 0 (+z up); the palm frame is the hand's (origin at
 the centre of the palm face, +z the approach). ``T_world_palm`` maps palm to world coordinates.
@@ -24,7 +24,7 @@ Units: metres and radians.
 3. The lift check: the best distinct grasps are lifted in a dynamic simulation on the same mesh
    (:func:`~shapeviewer.grasp.lift.lift_test`, gravity on, the fingers squeezing), and those that
    pick the object up come first. Epsilon ignores gravity, the table and how the fingers squeeze,
-   so even on a perfect mesh its best grasp can drop the object (``benchmarks/grasp_ceiling.py``
+   so even on a perfect mesh its best grasp can drop the object (``benchmarks/studies/grasp_ceiling.py``
    measures how often).
 
 Stage 1 is :func:`~shapeviewer.grasp.search.search`, on the hand's precomputed samples
@@ -39,7 +39,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
 import trimesh
 
 from shapeviewer.grasp.hands import Hand, get_hand
@@ -51,7 +50,9 @@ from shapeviewer.grasp.search import CancelFn, PlanSettings, ProgressFn, distinc
 from shapeviewer.grasp.state import Grasp, GraspContact, HandState, lift_order
 from shapeviewer.grasp.world import ApproachResult, CloseResult, Decomposition, GraspWorld
 
-BACK_OFF = 0.2  # m: the protocol backs the open hand off this far along the approach (SPEC section 8)
+from ..runtime.bullet import pybullet as p
+
+BACK_OFF = 0.2  # m: the protocol backs the open hand off this far along the approach (the authors' GraspIt evaluation)
 APPROACH_SLACK = 0.03  # m: planning approaches this much beyond the back-off, for cheap-stage errors
 LIFT_CANDIDATES = 2  # the lift check tries up to this many times the requested number of grasps
 
@@ -69,7 +70,7 @@ def approach_and_close(
     max_approach: float = BACK_OFF,
     targets: Sequence[Sequence[float] | None] = (None,),
 ) -> tuple[bool, ApproachResult, CloseResult | None]:
-    """The protocol of SPEC section 8 on the hand of ``world``.
+    """The execution protocol of the authors' GraspIt evaluation on the hand of ``world``.
 
     Set the palm at ``T_world_palm`` (world frame) with the dofs ``preshape`` and open the hand;
     back off ``back_off`` (m) along the approach (poses are set directly, so nothing collides on

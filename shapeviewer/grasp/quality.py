@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import ConvexHull, QhullError
 
-FRICTION = 1.0  # the Barrett's rubber on common materials (SPEC section 8)
+FRICTION = 1.0  # the Barrett's rubber on common materials (GraspIt's value)
 CONE_EDGES = 8
 
 

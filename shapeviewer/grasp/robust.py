@@ -1,4 +1,4 @@
-"""Grasps that survive the completion's uncertainty (issue 14): each planned grasp re-closed, and
+"""Grasps that survive the completion's uncertainty: each planned grasp re-closed, and
 the most robust lifted, on sample completions, with the palm where a robot might really put it.
 
 A completion is one guess at the side the camera never saw; the CNN's sample completions
@@ -23,16 +23,16 @@ hedges (a vessel's unseen wall, an occluded end), and the samples then choose am
 
 When even the most robust grasp lifts fewer than ``WIDEN_BELOW`` (all) of its sample tests
 (:func:`is_weak`), no grasp planned on the completion holds on everything the object may be (a
-plate's rim, a banana's hidden end, a pitcher's far wall, a jar a few millimetres wider): the
-callers (the evaluation, the viewer's "Rank by robustness") then plan as many grasps again on the
-grasp envelope, score them over the same samples against the envelope, and rank both sets
-together. Views with a grasp that lifts every sample test (two in five on the tabletop views) cost
-nothing more.
+plate's rim, a banana's hidden end, a pitcher's far wall, a jar a few millimetres wider): the pick
+(:func:`~shapeviewer.grasp.pick.rank_grasps`, which every caller goes through) then plans as many
+grasps again on the grasp envelope, scores them over the same samples against the envelope, and
+ranks both sets together. Views with a grasp that lifts every sample test (two in five on the
+tabletop views) cost nothing more.
 
 Why lift: the planner's ranking already puts the grasps that lift the completion first; the grasps
 that then still fail on the true object mostly close without force closure on it. Whether a grasp
 lifts the perturbed samples tells those apart from the good ones far better than whether it closes
-on them (the model card's "Grasps on tabletop views" has the figures).
+on them (docs/studies/robust-ranking.md has the figures).
 
 Frames and units: the grasps and every mesh are in one world frame, the planner's
 (:mod:`~shapeviewer.grasp.plan`: the table top is z = 0, +z up, when there is a table); metres and
@@ -78,6 +78,7 @@ from scipy.spatial.transform import Rotation
 
 from shapeviewer.completion.reconstruct import MESH_LEVEL, fast_mesh
 from shapeviewer.completion.voxel import GridFrame
+from shapeviewer.errors import Cancelled
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import get_hand
 from shapeviewer.grasp.lift import lift_test
@@ -101,18 +102,19 @@ ENVELOPE_LEVEL = 0.3
 # errors are systematic, not random: the network rounds the corners it cannot see and stops short of
 # an unseen end, so samples meshed at its level all share them. Meshed lower, a sample reaches out
 # where the network hedges, as the true object often does; a grasp that lifts both kinds of sample
-# holds on more true objects (the model card's "Session 28" has the figures).
+# holds on more true objects (docs/studies/robust-ranking.md
+# has the figures).
 HEDGE = 0.2
 # A most robust grasp that lifted fewer than this share of its lift tests on the samples is not
 # trusted, so as many grasps again are planned on the grasp envelope (:func:`envelope_mesh`) and the
 # most robust of both is kept (:func:`is_weak`). All of them: on the tabletop views, a pick that
 # lifted every sample test lifted the true object every time, one that lifted 80-95 % of them about
-# nine times in ten (the model card's "Session 30" and "Session 35" have the figures).
+# nine times in ten (docs/studies/wider-search.md has the figures).
 WIDEN_BELOW = 1.0
 
 
-class RobustnessCancelled(Exception):
-    """:func:`robustness` stopped because its ``cancel`` returned True."""
+# :func:`robustness` stopped because its ``cancel`` returned True (the package's one cancellation error).
+RobustnessCancelled = Cancelled
 
 
 @dataclass(frozen=True)
@@ -484,7 +486,7 @@ def envelope_mesh(
     ``frame``): the fast mesh of their mean at p = ``level``, moved from the camera frame to the
     world frame by ``T_world_cam`` (metres). Planned on, it gives grasps that wrap what the object
     may be, which the ranking over the samples (:func:`robustness`) then checks; on the tabletop
-    views that beat grasps planned on the completion itself (the model card has the figures).
+    views that beat grasps planned on the completion itself (docs/studies/wider-search.md).
 
     Raises:
         EmptyCompletionError: nothing in the mean answer is above ``level``.

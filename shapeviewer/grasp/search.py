@@ -20,14 +20,15 @@ from scipy.spatial.transform import Rotation
 
 from shapeviewer.grasp.object_field import APPROACH_MARGIN, ObjectField
 from shapeviewer.grasp.samples import HandSamples
+from shapeviewer.runtime.progress import CancelCheck, Progress
 
 DISTINCT_POSITION = 0.01  # m: grasps closer than this in palm position ...
 DISTINCT_ANGLE = math.radians(15.0)  # ... and in palm orientation are the same grasp
 TABLE_CLEARANCE = 0.003  # m: the open hand must stay this far above the table
 BATCH = 256  # candidates per vectorised evaluation
 
-ProgressFn = Callable[[float], None]
-CancelFn = Callable[[], bool]
+ProgressFn = Progress  # the package's progress callback (fraction done, 0..1)
+CancelFn = CancelCheck
 
 
 @dataclass

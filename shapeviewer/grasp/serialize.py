@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from shapeviewer.errors import ShapeviewerError
 from shapeviewer.fileio import atomic_write
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.execute import ExecutionResult
@@ -346,7 +347,7 @@ def plan_mesh_file(
     return grasps
 
 
-class MeshError(ValueError):
+class MeshError(ShapeviewerError, ValueError):
     """A mesh file that cannot be grasped; the message names the file and what is wrong with it."""
 
 

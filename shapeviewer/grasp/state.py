@@ -1,4 +1,4 @@
-"""What a grasp is: the hand's state on an object (SPEC section 8).
+"""What a grasp is: the hand's state on an object.
 
 :class:`HandState` is what a planned :class:`Grasp` and an executed one
 (:class:`~shapeviewer.grasp.execute.ExecutionResult`) have in common: the palm pose, the dofs and

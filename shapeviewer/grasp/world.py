@@ -27,9 +27,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 import trimesh
 
+from shapeviewer.errors import ShapeviewerError
 from shapeviewer.geometry import centre_of_mass
 from shapeviewer.grasp.hands import (
     Hand,
@@ -44,13 +44,14 @@ from shapeviewer.grasp.hands import (
 )
 
 from ..fileio import cache_dir
+from ..runtime.bullet import pybullet as p
 
 CONTACT_TOL = 1e-3  # a link within this distance (m) of an obstacle is in contact
 # Closest-point queries look this far (m); anything farther counts as this far, which caps a
 # step. Each query costs about one row per pair of convex parts (or triangles of a static
 # concave mesh) within the radius, so a fine static mesh wants a smaller one.
 QUERY_RADIUS = 0.03
-VHACD_RESOLUTION = 100_000  # SPEC section 8: the default is 10x slower for no gain here
+VHACD_RESOLUTION = 100_000  # pybullet.vhacd's default is 10x slower for no gain here
 MERGE_RADIUS = 5e-3  # contacts of one link closer than this (m) are one contact
 MAX_PER_LINK = 2  # contacts kept per link and body: a line contact's ends; more cost epsilon time
 
@@ -104,7 +105,7 @@ def mesh_hash(mesh: trimesh.Trimesh) -> str:
     return h.hexdigest()
 
 
-class DecompositionError(RuntimeError):
+class DecompositionError(ShapeviewerError, RuntimeError):
     """V-HACD failed or did not finish in time (the message says which, for the user)."""
 
 

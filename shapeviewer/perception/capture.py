@@ -15,7 +15,8 @@ What a capture may cost is capped: a file of more than :data:`MAX_FILE_POINTS` p
 before it is read, and :func:`load_capture` keeps at most :data:`MAX_CAPTURE_POINTS` of the rest
 (:func:`decimate`: a regular stride, rows and columns of an organized cloud), logging a warning.
 
-Every problem with a file raises :class:`CaptureError` naming the file and what is wrong with it.
+Every problem with a file raises :class:`CaptureError` naming the file and what is wrong with it;
+the header checks and raw pixel reads behind that are in :mod:`shapeviewer.perception.readers`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 import trimesh
 
 from .camera import Intrinsics, backproject
+from .readers import CaptureError, check_file, pcd_layout, ply_layout, read_npy_depth, read_png_depth
 
 log = logging.getLogger(__name__)
 
@@ -97,10 +99,6 @@ class Capture:
         return f"{self.original_points:,} points: kept {len(self.flat_points()):,} for segmentation and completion"
 
 
-class CaptureError(ValueError):
-    """A capture file that cannot be read; the message names the file and what is wrong with it."""
-
-
 CLOUD_SUFFIXES = (".pcd", ".ply")
 DEPTH_SUFFIXES = (".png", ".npy")
 # What one capture may cost. Segmentation and completion keep at most this many points (a
@@ -109,9 +107,6 @@ MAX_CAPTURE_POINTS = 1_000_000
 # Files declaring more points (or depth pixels) than this are refused unread: Open3D and PIL
 # would hold all of them (10 M points are about 0.5 GB as Open3D reads them).
 MAX_FILE_POINTS = 10_000_000
-# PCD and PLY headers are a few hundred bytes; this many lines without the end of the header means
-# the file is not what its suffix says.
-_MAX_HEADER_LINES = 200
 # A pinhole model fitted to an organized cloud must reproduce its pixel grid this well (RMS pixels),
 # otherwise the cloud is not in its camera's optical frame and the fit means nothing.
 _MAX_FIT_RMS_PX = 0.5
@@ -204,7 +199,7 @@ def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = Non
     Raises:
         CaptureError: unreadable, not such an array, larger than :data:`MAX_FILE_POINTS`, or no finite point.
     """
-    path = _check_file(path)
+    path = check_file(path)
     try:
         raw = np.load(path, mmap_mode="r", allow_pickle=False)
     except Exception as e:  # ValueError, OSError, EOFError... for broken files
@@ -268,12 +263,12 @@ def load_cloud(path: str | os.PathLike, intrinsics: Intrinsics | None = None) ->
     """
     import open3d as o3d
 
-    path = _check_file(path)
+    path = check_file(path)
     suffix = path.suffix.lower()
     if suffix == ".pcd":
-        n_points, width, height = _pcd_layout(path)
+        n_points, width, height = pcd_layout(path)
     elif suffix == ".ply":
-        n_points, width, height = _ply_layout(path)
+        n_points, width, height = ply_layout(path)
     else:
         raise CaptureError(f"{path}: not a point cloud file (expected {' or '.join(CLOUD_SUFFIXES)})")
     if n_points > MAX_FILE_POINTS:
@@ -314,12 +309,12 @@ def load_depth(
         CaptureError: missing/empty/unreadable file, not a single-channel depth image, no valid
             pixel, a non-positive ``depth_scale`` or intrinsics of the wrong size.
     """
-    path = _check_file(path)
+    path = check_file(path)
     suffix = path.suffix.lower()
     if suffix == ".png":
-        raw, default_scale = _read_png_depth(path), 1000.0
+        raw, default_scale = read_png_depth(path, MAX_FILE_POINTS), 1000.0
     elif suffix == ".npy":
-        raw, default_scale = _read_npy_depth(path), 1.0
+        raw, default_scale = read_npy_depth(path, MAX_FILE_POINTS), 1.0
     else:
         raise CaptureError(f"{path}: not a depth image file (expected {' or '.join(DEPTH_SUFFIXES)})")
     scale = default_scale if depth_scale is None else float(depth_scale)
@@ -368,219 +363,6 @@ def fit_intrinsics(points_cam: np.ndarray, source: str = "cloud") -> Intrinsics 
         return None
     log.info("%s: fitted intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f (RMS %.3f px)", source, fx, fy, cx, cy, rms)
     return Intrinsics(w, h, float(fx), float(fy), float(cx), float(cy))
-
-
-def _check_file(path: str | os.PathLike) -> Path:
-    path = Path(path)
-    if not path.exists():
-        raise CaptureError(f"{path}: file not found")
-    if not path.is_file():
-        raise CaptureError(f"{path}: not a file")
-    if path.stat().st_size == 0:
-        raise CaptureError(f"{path}: the file is empty")
-    return path
-
-
-def _header_lines(path: Path, f, last_key: str) -> tuple[dict[str, list[str]], list[list[str]]]:
-    """Keyword lines of a text header up to and including ``last_key`` (read from open file ``f``).
-
-    Returns ``(last value of each key, every line in order)``; raises when ``last_key`` never comes.
-    """
-    keys: dict[str, list[str]] = {}
-    lines: list[list[str]] = []
-    for _ in range(_MAX_HEADER_LINES):
-        raw = f.readline(4096)
-        if not raw:
-            break
-        words = raw.decode("ascii", errors="replace").split()
-        if not words or words[0].startswith("#"):
-            continue
-        lines.append(words)
-        keys[words[0]] = words[1:]
-        if words[0] == last_key:
-            return keys, lines
-    raise CaptureError(
-        f"{path}: corrupt or not a {path.suffix[1:].upper()} file: the header never reaches its {last_key!r} line"
-    )
-
-
-def _header_ints(path: Path, keys: dict[str, list[str]], key: str, n: int | None = None) -> list[int]:
-    values = keys.get(key)
-    if values is None:
-        raise CaptureError(f"{path}: corrupt header: no {key} line")
-    try:
-        ints = [int(x) for x in values]
-    except ValueError:
-        raise CaptureError(f"{path}: corrupt header: {key} {' '.join(values)!r} is not a list of integers") from None
-    if (n is not None and len(ints) != n) or any(i < 0 for i in ints):
-        raise CaptureError(
-            f"{path}: corrupt header: {key} {' '.join(values)!r} (expected {n or 'some'} non-negative integers)"
-        )
-    return ints
-
-
-def _pcd_layout(path: Path) -> tuple[int, int, int]:
-    """``(points, width, height)`` of a PCD after checking its header and that its data is complete."""
-    with open(path, "rb") as f:
-        keys, _ = _header_lines(path, f, "DATA")
-        data_offset = f.tell()
-        fields = keys.get("FIELDS", [])
-        if not {"x", "y", "z"} <= set(fields):
-            raise CaptureError(f"{path}: corrupt header or not a point cloud: FIELDS {' '.join(fields)!r} lacks x y z")
-        sizes = _header_ints(path, keys, "SIZE", len(fields))
-        counts = _header_ints(path, keys, "COUNT", len(fields)) if "COUNT" in keys else [1] * len(fields)
-        if len(keys.get("TYPE", [])) != len(fields):
-            raise CaptureError(f"{path}: corrupt header: TYPE does not list a type per field")
-        (width,), (height,) = _header_ints(path, keys, "WIDTH", 1), _header_ints(path, keys, "HEIGHT", 1)
-        (n_points,) = _header_ints(path, keys, "POINTS", 1) if "POINTS" in keys else (width * height,)
-        if n_points != width * height:
-            raise CaptureError(f"{path}: corrupt header: POINTS {n_points} is not WIDTH x HEIGHT ({width} x {height})")
-        if n_points == 0:
-            raise CaptureError(f"{path}: the cloud has no points")
-        kind = (keys["DATA"] or ["?"])[0]
-        needed = n_points * sum(s * c for s, c in zip(sizes, counts))
-        available = os.fstat(f.fileno()).st_size - data_offset
-        if kind == "ascii":
-            body = f.read().strip()
-            rows = body.count(b"\n") + 1 if body else 0
-            if rows < n_points:
-                raise CaptureError(f"{path}: truncated: {rows} of {n_points} point rows are present")
-        elif kind == "binary":
-            if available < needed:
-                raise CaptureError(
-                    f"{path}: truncated: {available} bytes of binary data, {n_points} points need {needed}"
-                )
-        elif kind == "binary_compressed":
-            sizes_raw = f.read(8)
-            if len(sizes_raw) < 8:
-                raise CaptureError(f"{path}: truncated: the compressed data block is missing")
-            packed, unpacked = np.frombuffer(sizes_raw, dtype="<u4")
-            if unpacked != needed:
-                raise CaptureError(
-                    f"{path}: corrupt: the compressed block unpacks to {unpacked} bytes, "
-                    f"{n_points} points need {needed}"
-                )
-            if available - 8 < packed:
-                raise CaptureError(f"{path}: truncated: {available - 8} of {packed} compressed bytes are present")
-        else:
-            raise CaptureError(f"{path}: unsupported DATA {kind!r} (expected ascii, binary or binary_compressed)")
-    return n_points, width, height
-
-
-_PLY_SIZES = {
-    "char": 1,
-    "uchar": 1,
-    "int8": 1,
-    "uint8": 1,
-    "short": 2,
-    "ushort": 2,
-    "int16": 2,
-    "uint16": 2,
-    "int": 4,
-    "uint": 4,
-    "int32": 4,
-    "uint32": 4,
-    "float": 4,
-    "float32": 4,
-    "double": 8,
-    "float64": 8,
-}
-
-
-def _ply_layout(path: Path) -> tuple[int, int, int]:
-    """``(points, width, height)`` of a PLY after checking its header and that its vertices are complete.
-
-    Organized when PCL's ``obj_info num_cols W`` / ``obj_info num_rows H`` lines say so.
-    """
-    with open(path, "rb") as f:
-        if f.readline(16).strip() != b"ply":
-            raise CaptureError(f"{path}: not a PLY file (it does not start with 'ply')")
-        keys, lines = _header_lines(path, f, "end_header")
-        data_offset = f.tell()
-        fmt = (keys.get("format") or ["?"])[0]
-        if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-            raise CaptureError(f"{path}: corrupt header: unknown format {fmt!r}")
-        # elements in file order: [name, count, record bytes (None when it has list properties), props]
-        elements: list[list] = []
-        info: dict[str, str] = {}
-        for words in lines:
-            if words[0] == "element" and len(words) == 3 and words[2].isdigit():
-                elements.append([words[1], int(words[2]), 0, []])
-            elif words[0] == "property" and elements and len(words) >= 3:
-                el = elements[-1]
-                el[3].append(words[-1])
-                size = _PLY_SIZES.get(words[1]) if words[1] != "list" else None
-                el[2] = None if size is None or el[2] is None else el[2] + size
-            elif words[0] == "obj_info" and len(words) == 3:
-                info[words[1]] = words[2]
-            elif words[0] in ("element", "property"):
-                raise CaptureError(f"{path}: corrupt header line {' '.join(words)!r}")
-        names = [e[0] for e in elements]
-        if "vertex" not in names:
-            raise CaptureError(f"{path}: the PLY has no vertex element")
-        at = names.index("vertex")
-        _, n_points, record, props = elements[at]
-        if not {"x", "y", "z"} <= set(props):
-            raise CaptureError(f"{path}: the vertices have no x y z properties")
-        if n_points == 0:
-            raise CaptureError(f"{path}: the cloud has no points")
-        if fmt == "ascii":
-            rows_needed = sum(e[1] for e in elements[: at + 1])
-            body = f.read().strip()
-            rows = body.count(b"\n") + 1 if body else 0
-            if rows < rows_needed:
-                raise CaptureError(
-                    f"{path}: truncated: {rows} of the {rows_needed} data rows up to the last vertex are present"
-                )
-        elif all(e[2] is not None for e in elements[: at + 1]):  # fixed-size records: sizes are known
-            needed = sum(e[1] * e[2] for e in elements[: at + 1])
-            available = os.fstat(f.fileno()).st_size - data_offset
-            if available < needed:
-                raise CaptureError(f"{path}: truncated: {available} bytes of binary data, the vertices need {needed}")
-    try:
-        width, height = int(info.get("num_cols", n_points)), int(info.get("num_rows", 1))
-    except ValueError:
-        width, height = n_points, 1
-    if width * height != n_points:  # obj_info that does not describe this cloud: ignore it
-        width, height = n_points, 1
-    return n_points, width, height
-
-
-def _read_png_depth(path: Path) -> np.ndarray:
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            if im.width * im.height > MAX_FILE_POINTS:  # checked before decoding the pixels
-                raise CaptureError(f"{path}: {im.width}x{im.height} pixels; at most {MAX_FILE_POINTS:,} can be loaded")
-            im.load()
-            mode, depth = im.mode, np.asarray(im)
-    except CaptureError:
-        raise
-    except Exception as e:  # PIL raises OSError, SyntaxError, ValueError... for broken files
-        raise CaptureError(f"{path}: not a readable PNG image ({e})") from None
-    if not mode.startswith("I"):
-        raise CaptureError(
-            f"{path}: a {mode} image, not a depth image; expected a single-channel 16-bit PNG of millimetres"
-        )
-    return depth
-
-
-def _read_npy_depth(path: Path) -> np.ndarray:
-    try:
-        depth = np.load(path, mmap_mode="r", allow_pickle=False)  # mapped: the size is checked before reading
-    except Exception as e:  # ValueError, OSError, EOFError... for broken files
-        raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
-    if not isinstance(depth, np.ndarray) or depth.ndim != 2:
-        shape = getattr(depth, "shape", type(depth).__name__)
-        raise CaptureError(f"{path}: expected a 2-D (H, W) depth array in metres, got {shape}")
-    if depth.size > MAX_FILE_POINTS:
-        raise CaptureError(
-            f"{path}: {depth.shape[1]}x{depth.shape[0]} pixels; at most {MAX_FILE_POINTS:,} can be loaded"
-        )
-    if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
-        raise CaptureError(f"{path}: expected a numeric depth array, got dtype {depth.dtype}")
-    return depth
 
 
 def _depth_intrinsics(path: Path, shape: tuple[int, int], intrinsics: Intrinsics | None) -> Intrinsics:

@@ -23,6 +23,9 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any, TypeVar
 
+from ..errors import Cancelled, ShapeviewerError
+from .progress import Progress, clamped
+
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
@@ -34,15 +37,16 @@ STOP_SECONDS = 0.2  # what shutdown waits for a worker to leave before killing i
 REAP_SECONDS = 5.0
 
 
-class JobCancelled(Exception):
-    """The job was cancelled and its worker did not stop in time, so it was killed."""
+# The name this module used for :class:`~shapeviewer.errors.Cancelled` (a job cancelled before
+# it had a worker, or whose worker did not stop in time and was killed); viewer.grasps.work uses it.
+JobCancelled = Cancelled
 
 
-class WorkerDied(RuntimeError):
+class WorkerDied(ShapeviewerError, RuntimeError):
     """A worker process ended in the middle of a job (killed, out of memory, a crash in C)."""
 
 
-class RemoteTraceback(Exception):
+class RemoteTraceback(ShapeviewerError):
     """The traceback of an exception raised in a worker (set as the raised exception's cause)."""
 
     def __str__(self) -> str:
@@ -66,7 +70,7 @@ def _serve(conn: Connection, nice: int) -> None:
         return cancelled[0]
 
     def progress(fraction: float) -> None:
-        pct = int(100 * min(max(fraction, 0.0), 1.0))
+        pct = int(100 * clamped(fraction))
         if pct != last[0]:  # whole percents only: the bar shows no more
             last[0] = pct
             conn.send(("progress", fraction))
@@ -115,7 +119,7 @@ class _Worker:
         fn: Callable[..., T],
         args: tuple,
         kwargs: dict,
-        progress: Callable[[float], None] | None,
+        progress: Progress | None,
         cancel: threading.Event | None,
     ) -> T:
         if self.process is None or not self.process.is_alive():
@@ -135,7 +139,7 @@ class _Worker:
                     cancelled_at = time.monotonic()
                 if cancelled_at is not None and time.monotonic() - cancelled_at > CANCEL_GRACE_SECONDS:
                     self.kill()
-                    raise JobCancelled(f"the job did not stop within {CANCEL_GRACE_SECONDS:.0f} s of Cancel")
+                    raise Cancelled(f"the job did not stop within {CANCEL_GRACE_SECONDS:.0f} s of Cancel")
                 if not conn.poll(POLL_SECONDS):
                     if not process.is_alive():
                         raise EOFError
@@ -185,7 +189,7 @@ class _Worker:
 class ProcessPool:
     """``workers`` worker processes that run module-level functions for the sessions: at most
     that many at once, the rest wait their turn. Functions must accept ``progress`` and ``cancel``
-    keywords (a ``fraction -> None`` and a ``() -> bool``, as the grasp planner does).
+    keywords (a :data:`~.progress.Progress` and a :data:`~.progress.CancelCheck`, as the grasp planner does).
 
     ``nice``: added to the workers' niceness, so that where cores are short the server's own
     threads (a user's click) come first and the jobs take the time left over.
@@ -211,7 +215,7 @@ class ProcessPool:
         self,
         fn: Callable[..., T],
         *args: Any,
-        progress: Callable[[float], None] | None = None,
+        progress: Progress | None = None,
         cancel: threading.Event | None = None,
         **kwargs: Any,
     ) -> T:
@@ -220,7 +224,8 @@ class ProcessPool:
         this thread; setting ``cancel`` makes the worker's ``cancel()`` true.
 
         Raises:
-            JobCancelled: ``cancel`` was set and the worker had to be killed to stop it.
+            Cancelled: ``cancel`` was set before a worker was free, or the worker had to be killed to
+                stop it (a job that stops by itself raises what it raises, often ``Cancelled`` too).
             WorkerDied: the worker process ended during the job.
             RuntimeError: the pool is shut down.
         """
@@ -229,7 +234,7 @@ class ProcessPool:
             try:
                 while not self._idle and not self._closed:
                     if cancel is not None and cancel.is_set():
-                        raise JobCancelled("cancelled while waiting for a worker")
+                        raise Cancelled("cancelled while waiting for a worker")
                     self._cond.wait(POLL_SECONDS)
                 if self._closed:
                     raise RuntimeError("the viewer is stopping")

@@ -4,7 +4,7 @@ Two generated families resolve by name without being listed: random assemblies o
 training (:mod:`.assembly`) and kinds kept out of training (:mod:`.novel`).
 
 Every mesh is returned in its own object frame, metres. The catalogue fixes the paper-style split
-(SPEC §4): a few YCB objects and 15% of the procedurally made ``random_urdfs`` and ``household``
+(Sec. IV-A): a few YCB objects and 15% of the procedurally made ``random_urdfs`` and ``household``
 objects (chosen by a hash of the name) are *holdout models*; every other object trains, and 20% of
 each training model's views (chosen by a hash of object and view) are *holdout views*.
 

@@ -15,7 +15,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import pybullet
 import trimesh
 from pybullet_utils.bullet_client import BulletClient
 
@@ -24,6 +23,7 @@ from ..grasp.hands import get_base_pose
 from ..grasp.world import convex_decomposition
 from ..perception.camera import Intrinsics, backproject, look_at, transform_points
 from ..perception.capture import Capture, SceneObject
+from ..runtime.bullet import direct_client, pybullet
 from .catalogue import catalogue, load_mesh
 from .sensor import KinectNoise, RaycastRenderer
 
@@ -151,7 +151,7 @@ def build_tabletop(seed: int = 0, n_objects: int | None = None) -> list[SceneObj
     rng = np.random.default_rng([seed, _OBJECT_STREAM])
     names = pick_objects(rng, n_objects)
     meshes = [load_mesh(n) for n in names]
-    client = BulletClient(connection_mode=pybullet.DIRECT)
+    client = direct_client()
     try:
         client.setGravity(0, 0, -9.81)
         client.setTimeStep(TIME_STEP)

@@ -4,7 +4,7 @@ The completion CNN learns from the catalogue (YCB, pybullet objects and the hous
 :mod:`.household`); a robot meets objects of other kinds too. These families are never in the
 catalogue's list, so ``shapeviewer generate`` cannot train on them: ``novel/<kind>_<index>`` names
 resolve to a mesh (:func:`catalogue.load_mesh`) and to the holdout-model split, so tabletop views of
-them render like any holdout object's (``python benchmarks/novel_kinds.py``).
+them render like any holdout object's (``python -m benchmarks.studies.novel_kinds``).
 
 Conventions as in :mod:`.household`: ``family(rng) -> trimesh.Trimesh``, metres, z up, the object in
 its natural resting pose, lowest point at z = 0, bounding box centred on the x-y origin, one

@@ -1,4 +1,4 @@
-"""Training data generation (paper Sec. IV-A, SPEC §4): (X, Y) pairs of 40^3 grids per rendered view.
+"""Training data generation (paper Sec. IV-A): (X, Y) pairs of 40^3 grids per rendered view.
 
 For each object and orientation on the paper's roll x pitch x yaw grid (11 x 6 x 11 = 726), the
 object alone is rendered by the live pipeline's simulated Kinect (same intrinsics, optional sensor

@@ -1,4 +1,4 @@
-"""Training the completion CNN (paper Sec. IV-A, SPEC §3): Adam, binary cross-entropy, batch 32
+"""Training the completion CNN (paper Sec. IV-A): Adam, binary cross-entropy, batch 32
 drawn with replacement, Jaccard on Training Views, Holdout Views and Holdout Models (paper Fig. 4).
 
 Data: the shards written by :mod:`shapeviewer.training.generate`. Views of training models are split into
@@ -8,8 +8,9 @@ are trained on.
 Outputs in the run directory: ``last.pt`` (resumable: model, optimiser, step, RNG state),
 ``best_loss.pt`` (best training error), ``best_holdout_model.pt`` (best Holdout Models Jaccard),
 ``log.csv`` and ``jaccard.png`` (the three curves); with ``snapshot_every``, ``step_NNNNNN.pt`` at every
-multiple of it, whose mean (:func:`average_weights`) averages the run's trajectory (stochastic weight
-averaging: a network at the centre of the region Adam wanders in at a constant rate).
+multiple of it, whose mean (:func:`shapeviewer.training.averaging.average_weights`) averages the run's
+trajectory (stochastic weight averaging: a network at the centre of the region Adam wanders in at a
+constant rate).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import torch
 import torch.nn.functional as F
 
 from ..completion.model import build, default_device, network_input, save_weights
-from ..completion.voxel import FRONT_MARGIN, GRID_DIM
+from ..completion.voxel import GRID_DIM
 from ..fileio import atomic_write
 from ..sim import catalogue
 from .generate import folder_depth_shift, shard_files
@@ -467,49 +468,6 @@ def train(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = N
     return result
 
 
-def average_weights(paths: list[str | Path], out: str | Path, *, note: str | None = None) -> dict:
-    """Write to ``out`` the parameter-wise mean of weights files of one architecture; returns its meta.
-
-    Averaging a fine-tuned network with the one it started from (Wortsman et al., "Robust
-    fine-tuning of zero-shot models", 2022) keeps much of what the fine-tune learnt while staying
-    close to what the start already did well. The meta is the last file's without its evaluation,
-    with ``averaged_from`` (the files' names) and ``note`` as its ``schedule`` when given.
-
-    Raises:
-        ValueError: fewer than two files, or files of different architectures, shapes or grid
-            placements (``meta["depth_shift"]``: the mean of two placements' networks answers neither).
-    """
-    if len(paths) < 2:
-        raise ValueError("average at least two weights files")
-    states = [torch.load(p, map_location="cpu", weights_only=True) for p in paths]
-    first = states[0]
-    for p, st in zip(paths[1:], states[1:], strict=True):
-        same = st["arch"] == first["arch"] and st["state_dict"].keys() == first["state_dict"].keys()
-        if not same or any(v.shape != first["state_dict"][k].shape for k, v in st["state_dict"].items()):
-            raise ValueError(f"{p} is not the same network as {paths[0]} (architecture or shapes differ)")
-        shifts = [s.get("meta", {}).get("depth_shift", 0.0) for s in (first, st)]
-        if shifts[0] != shifts[1]:
-            raise ValueError(
-                f"{p} was trained with the object {shifts[1]:g} voxels forward in the grid, {paths[0]} with "
-                f"{shifts[0]:g} (generate --depth-shift): their mean would answer neither placement"
-            )
-    avg = {}
-    for k, v in first["state_dict"].items():
-        if v.is_floating_point():
-            avg[k] = torch.stack([st["state_dict"][k].float() for st in states]).mean(0).to(v.dtype)
-        else:  # counters such as BatchNorm's batches seen: the last file's
-            avg[k] = states[-1]["state_dict"][k]
-    # The last file's evaluation was of that network, not of the mean: it is left out.
-    meta = {k: v for k, v in states[-1].get("meta", {}).items() if k != "eval"}
-    meta["averaged_from"] = [Path(p).name for p in paths]
-    if note:
-        meta["schedule"] = note
-    net = build(first["arch"], **meta.get("arch_kwargs", {}))
-    net.load_state_dict(avg)
-    save_weights(out, net, first["arch"], meta)
-    return meta
-
-
 def _truncate_log(log_csv: Path, step: int) -> None:
     """Drop log rows written after the checkpoint a run resumes from (they will be redone)."""
     if not log_csv.exists():
@@ -560,58 +518,3 @@ def plot_log(log_csv: str | Path, png: str | Path) -> None:
     fig.tight_layout()
     fig.savefig(png)
     plt.close(fig)
-
-
-def model_card(completer, evaluation: dict, data_dir: str | Path | list) -> str:
-    """A markdown model card: architecture, data, split, training, and measured Jaccard at 40^3.
-
-    The reproduction commands and the figures on test views (``evaluate``) are the caller's to add.
-    """
-    meta = completer.meta
-    # Counted on a fresh module: the loaded one's convolutions are pre-packed for oneDNN.
-    n_params = sum(p.numel() for p in build(completer.arch, **meta.get("arch_kwargs", {})).parameters())
-    names = {"training_view": "Training Views", "holdout_view": "Holdout Views", "holdout_model": "Holdout Models"}
-    rows = "\n".join(
-        f"| {names[s]} | {v['views']} | {v['jaccard']:.3f} | {v['input_jaccard']:.3f} |" for s, v in evaluation.items()
-    )
-    ex = meta.get("examples", {})
-    data = meta.get("data", data_dir)
-    data = ", ".join(f"`{d}`" for d in (data if isinstance(data, (list, tuple)) else [data]))
-    inputs = (
-        "occupancy, plus two context channels: space the camera saw through and space under the support "
-        "plane (`voxel.context_grids`), both zeroed in the output"
-        if completer.in_channels == 3
-        else "occupancy only (the paper's input)"
-    )
-    placement = (
-        "the paper's placement (bounding-box centre at voxel (20, 20, 18), largest side 32 voxels)"
-        if completer.depth_shift == 0
-        else f"the paper's placement moved up to {completer.depth_shift:g} voxels towards the camera "
-        f"(bounding-box centre at voxel (20, 20, 18 - up to {completer.depth_shift:g}), front at least "
-        f"{FRONT_MARGIN:g} voxels inside, largest side 32 voxels)"
-    )
-    return f"""# Model card: `{completer.arch}` shape completion CNN
-
-- **Architecture**: `{completer.arch}` ({n_params:,} parameters), input and output 40^3 grids in
-  {placement}. Input: {inputs}.
-- **Data**: folders {data}; examples: {ex.get("training_view", "?")} training views,
-  {ex.get("holdout_view", "?")} holdout views, {ex.get("holdout_model", "?")} holdout-model views.
-- **Split**: holdout models are YCB 003_cracker_box, 006_mustard_bottle, 024_bowl, 035_power_drill and 15% of
-  the random pybullet and the procedural household objects (hash of the name); 20% of each training model's
-  views are holdout views.
-- **Training**: Adam (betas 0.9/0.999, eps 1e-8), learning rate {meta.get("lr", "?")},
-  batch {meta.get("batch_size", "?")} drawn with replacement, binary cross-entropy summed over voxels,
-  random image-plane mirror/transpose augmentation, the support plane hidden in {PLANE_DROPOUT:.0%} of the
-  examples; {meta.get("steps", "?")} steps,
-  {meta.get("wall_seconds", 0) / 3600:.1f} h of CPU time (2 cores, shared). Checkpoint chosen by the best Holdout
-  Models Jaccard on a 200-view sample (as the paper kept its best holdout-model checkpoint).
-
-## Jaccard at 40^3 (`shapeviewer evaluate-grids`, 500 views per set)
-
-| set | views | CNN | input only |
-|---|---|---|---|
-{rows}
-
-The output grid (p > {completer.grid_level:g}, the network's `grid_level`) against the paper's ground truth Y.
-"Input only" scores the visible-surface grid X itself against Y.
-"""

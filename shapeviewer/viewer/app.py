@@ -30,10 +30,11 @@ from ..perception.capture import Capture, load_capture
 from ..runtime.processes import ProcessPool
 from . import panel as P
 from .audience import Audience
+from .context import SessionResources
 from .dataset import DEFAULT, SampleBuild
 from .guard import Guard, server_url, start_server
 from .jobs import WorkerPool
-from .session import Session, SessionResources
+from .session import Session
 from .state import LoadedScene, load_scene
 
 log = logging.getLogger(__name__)

@@ -10,15 +10,30 @@ browser.
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import Literal
 
 import numpy as np
 import viser
-from viser._gui_api import GuiApi
-from viser._scene_api import SceneApi
+from viser import GuiApi, SceneApi
 
-if TYPE_CHECKING:
-    from viser._gui_api import LiteralColor  # the notification colours viser takes; it does not export the name
+# The notification colours viser takes (its ``add_notification(color=...)``; viser does not export
+# a name for them).
+NotificationColor = Literal[
+    "dark",
+    "gray",
+    "red",
+    "pink",
+    "grape",
+    "violet",
+    "indigo",
+    "blue",
+    "cyan",
+    "green",
+    "lime",
+    "yellow",
+    "orange",
+    "teal",
+]
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +81,7 @@ class Audience:
         client: viser.ClientHandle | None,
         title: str,
         body: str,
-        color: LiteralColor | None = None,
+        color: NotificationColor | None = None,
         auto_close: float | None = 8.0,
     ) -> None:
         """Show a notification; never raises (the tab may close mid-call).

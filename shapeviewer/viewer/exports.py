@@ -5,14 +5,16 @@ No viser: the app sends the ``(file name, content)`` pairs made here to the brow
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from .. import export
-from ..completion.pipeline import Completion
+from .results import SegmentResult
 from .state import MESH_KINDS, MESH_TITLES, LoadedScene
 
 
 def segment_export(
     scene: LoadedScene | None,
-    completions: dict[int, Completion],
+    results: Mapping[int, SegmentResult],
     sid: int | None,
     kind: str,
     mesh_format: str = "ply",
@@ -22,7 +24,7 @@ def segment_export(
     """``(file name, content)`` of an export of segment ``sid`` of ``scene``.
 
     Args:
-        completions: segment id -> its completion (grids and meshes, camera frame).
+        results: segment id -> its completion and the meshes made of it (camera frame).
         kind: ``points`` (PLY of the segment's points), ``grids`` (NPZ of the CNN input grid,
             output probabilities and grid frame) or ``mesh``.
         mesh_format: ``ply``, ``obj``, ``stl`` or ``glb`` (meshes only).
@@ -40,15 +42,16 @@ def segment_export(
         colors = scene.capture.flat_colors()
         data = export.points_ply_bytes(seg.points_cam, None if colors is None else colors[seg.indices], frame, T)
         return f"{stem}_points_{frame}.ply", data
-    c = completions.get(sid)
-    if c is None:
+    result = results.get(sid)
+    if result is None:
         raise ValueError(f"Segment {sid} has no completion yet: complete it first.")
+    c = result.completion
     if kind == "grids":
         return f"{stem}_grids.npz", export.grids_npz_bytes(c.grid_in, c.probabilities, c.frame, T, grid_out=c.grid_out)
     if kind == "mesh":
         if mesh not in MESH_KINDS:
             raise ValueError(f"unknown mesh {mesh!r}; choose one of {MESH_KINDS}")
-        m = getattr(c, f"{mesh}_mesh")
+        m = result.mesh(mesh)
         if m is None and mesh == "fast":
             raise ValueError(f"Segment {sid} has no fast mesh: {c.error}")
         if m is None:

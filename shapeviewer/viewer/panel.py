@@ -347,12 +347,11 @@ def completion_timings_markdown(title: str, timings: dict[str, float]) -> str:
     return timings_markdown(title, rows)
 
 
-def mesh_timings_markdown(kind: str, c: Completion, send: float) -> str:
-    """The stage table of a detailed (split by Algorithm 1's steps) or baseline mesh of ``c``."""
-    seconds = c.timings[f"{kind}_mesh"]
-    title = f"Segment **{c.segment_id}**: {MESH_TITLES[kind].lower()}"
+def mesh_timings_markdown(kind: str, segment_id: int, seconds: float, steps: dict[str, float], send: float) -> str:
+    """The stage table of a segment's detailed (split by Algorithm 1's ``steps``, seconds) or
+    baseline mesh, made in ``seconds`` and sent to the browser in ``send`` seconds."""
+    title = f"Segment **{segment_id}**: {MESH_TITLES[kind].lower()}"
     if kind == "detailed":
-        steps = c.timings["detailed_steps"]
         title += f" (Algorithm 1, up-sampling r = {steps['upsample_ratio']})"
         rows = [(label, steps[key]) for key, label in ALGORITHM_1_STEPS]
     else:

@@ -15,20 +15,17 @@ import trimesh
 
 from ..completion.baselines import hull_mesh, mirror_mesh, partial_mesh
 from ..completion.pipeline import Completion, SegmentTooSmallError, check_segment, completion_detailed_mesh
+from ..evaluation.methods import MESH_KINDS as ALL_MESH_KINDS
+from ..evaluation.methods import METHOD_INFO, MeshKind, method_of
 from ..perception.camera import transform_points
 from ..perception.capture import MAX_CAPTURE_POINTS, Capture, decimate
 from ..perception.segment import Segment, Segmentation, segment_scene, world_frame
 
-# The meshes a segment can have: ``Completion.<kind>_mesh``, drawn in layer ``<kind>_mesh``.
-MESH_KINDS = ("fast", "detailed", "envelope", "partial", "mirror", "hull")
+# The meshes a segment can have, by their short key (one per evaluation method,
+# :mod:`shapeviewer.evaluation.methods`), drawn in layer ``<kind>_mesh``.
+MESH_KINDS: tuple[MeshKind, ...] = ALL_MESH_KINDS
 # What the panel calls the meshes made on request (the fast mesh comes with every completion).
-MESH_TITLES = {
-    "detailed": "Detailed mesh",
-    "envelope": "Grasp envelope",
-    "partial": "Partial baseline",
-    "mirror": "Mirror baseline",
-    "hull": "Hull baseline",
-}
+MESH_TITLES: dict[str, str] = {k: METHOD_INFO[method_of(k)].mesh_title for k in MESH_KINDS if k != "fast"}
 
 
 @dataclass
@@ -129,7 +126,7 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
     return LoadedScene(capture, seg, T, note, seg_seconds, {s.id: s for s in seg.segments}, points_world)
 
 
-def make_mesh(kind: str, c: Completion, scene: LoadedScene, steps: dict[str, float]) -> trimesh.Trimesh:
+def make_mesh(kind: MeshKind, c: Completion, scene: LoadedScene, steps: dict[str, float]) -> trimesh.Trimesh:
     """Camera-frame mesh ``kind`` (``detailed``, ``envelope``, ``partial``, ``hull`` or ``mirror``)
     of completion ``c``'s segment; ``steps`` gets Algorithm 1's step times (seconds)."""
     points = scene.segments[c.segment_id].points_cam

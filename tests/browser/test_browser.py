@@ -8,11 +8,10 @@ and waits for the completion's scene nodes to appear on the server.
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from helpers import (
+    BROWSER_WAIT,
     browser_page,
     browser_session,
     canvas_point,
@@ -22,6 +21,7 @@ from helpers import (
     node,
     reported_camera,
     visible_segment,
+    wait_for_frames,
     wait_until,
 )
 
@@ -38,7 +38,7 @@ def test_click_segment_completes_it(tmp_path):
         with browser_page(viewer) as page:
             app = browser_session(viewer)  # the browser tab's own session
             client = app.audience.client
-            cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+            cam = wait_until(lambda: reported_camera(client), BROWSER_WAIT, "the browser's camera")
             # Click the largest segment that is in view, not hidden behind another one and
             # not under the control panel.
             order = sorted(app.scene.segments, key=lambda s: -len(app.scene.points_world[s]))
@@ -51,7 +51,7 @@ def test_click_segment_completes_it(tmp_path):
                 assert node(app, f"/{layer}/seg_{sid}") is not None
             assert app.selected == sid
             assert app.last_timings["click_to_mesh"] > 0
-            time.sleep(2)  # let the browser draw the new nodes before the screenshot
+            wait_for_frames(page)  # the browser has drawn the new nodes before the screenshot
             page.screenshot(path=str(tmp_path / "completed.png"), timeout=120_000)
     finally:
         viewer.stop()
@@ -73,7 +73,7 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             assert app.complete(sid) is not None and app.selected == sid
             app.grasps.panel.count.value = 3  # a quick plan: the test is about the button, not the planner
             button = page.get_by_role("button", name="Plan grasps")
-            button.wait_for(state="visible", timeout=30_000)
+            button.wait_for(state="visible", timeout=BROWSER_WAIT * 1000)
             # A software-rendered WebGL canvas on a busy machine starves the animation frames that
             # Playwright's "stable" check waits for: click without the check (force), and fall back
             # to the same DOM click event if even that cannot get through.
@@ -81,7 +81,7 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
                 button.click(force=True, timeout=30_000)
             except Exception:  # noqa: BLE001
                 button.dispatch_event("click")
-            job = wait_until(lambda: app.grasps.job, 20, "the click to start planning")
+            job = wait_until(lambda: app.grasps.job, BROWSER_WAIT, "the click to start planning")
             assert job.wait(180), "planning did not finish"
             assert job.error is None and sid in app.grasps.sets
             grasps = app.grasps.sets[sid].grasps
@@ -89,12 +89,12 @@ def test_plan_grasps_button_draws_hands_and_a_click_on_a_hand_selects_it(tmp_pat
             for k in range(len(grasps)):
                 assert node(app, f"/grasps/seg_{sid}/g{k}/hand/palm") is not None
             # The browser shows the best grasp's description.
-            page.get_by_text("Grasp #1").first.wait_for(timeout=20_000)
+            page.get_by_text("Grasp #1").first.wait_for(timeout=BROWSER_WAIT * 1000)
             page.screenshot(path=str(tmp_path / "grasps.png"), timeout=120_000)
 
             # Clicking another grasp's hand on the canvas selects it (and completes nothing).
             client = app.audience.client
-            cam = wait_until(lambda: reported_camera(client), 20, "the browser's camera")
+            cam = wait_until(lambda: reported_camera(client), BROWSER_WAIT, "the browser's camera")
             hand = get_hand("barrett")
             target = None
             for k, g in enumerate(grasps[1:], start=1):

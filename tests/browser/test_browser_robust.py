@@ -1,4 +1,4 @@
-"""Completion uncertainty in a real browser (issue 14): headless Debian Chromium (Playwright) ticks
+"""Completion uncertainty in a real browser: headless Debian Chromium (Playwright) ticks
 the Confidence layer and presses "Rank by robustness", and reads what the panel then shows.
 
 The app runs in this process: the test completes a segment and plans its grasps server-side (the
@@ -10,6 +10,7 @@ from __future__ import annotations
 import pytest
 
 from helpers import (
+    BROWSER_WAIT,
     browser_page,
     browser_session,
     checked,
@@ -42,7 +43,7 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
 
             # Ticking Confidence shades the completion and puts its figures in the stage panel.
             click(page, page.get_by_role("checkbox", name="Confidence", exact=True), "the 'Confidence' checkbox")
-            wait_for_text(page, "confidence of the completion", timeout=60)
+            wait_for_text(page, "confidence of the completion")
             text = page_text(page)
             assert "unseen side" in text and "are a guess" in text
             assert checked(page, "Confidence") and node(app, f"/confidence/seg_{sid}") is not None
@@ -52,10 +53,12 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
             lifts = [g.lift for g in job.result.grasps]
             # The planner lifted its grasps on the fast mesh; the browser says how the selected one did.
             assert all(lift is not None for lift in lifts)
-            wait_for_text(page, "Lift check on the fast mesh:", timeout=30)
+            wait_for_text(page, "Lift check on the fast mesh:")
             press(page, "Rank by robustness")  # waits until the button is enabled: there are grasps
             job = wait_until(
-                lambda: app.grasps.job if app.grasps.job.kind == "rank" else None, 20, "the click to start ranking"
+                lambda: app.grasps.job if app.grasps.job.kind == "rank" else None,
+                BROWSER_WAIT,
+                "the click to start ranking",
             )
             assert job.wait(600), "ranking did not finish"
             assert job.error is None and job.result is not None
@@ -63,7 +66,7 @@ def test_confidence_checkbox_and_rank_by_robustness_button():
             best = rank_robust(job.result, [g.lift for g in app.grasps.sets[sid].grasps])[0]
             holds = f"holds {round(8 * job.result[best].fraction)}/8"
             # The browser lists the most robust grasp first and describes it.
-            wait_for_text(page, f"Robustness: rank 1 of {len(job.result)} · {holds} sample completions", timeout=30)
+            wait_for_text(page, f"Robustness: rank 1 of {len(job.result)} · {holds} sample completions")
             assert "Ranked by robustness" in page_text(page)
             shown = dropdown_value(page, "Grasp")
             # The most robust grasp is among those lifted on the samples, and says so.

@@ -3,8 +3,6 @@ downloads a mesh."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import trimesh
@@ -12,7 +10,7 @@ import trimesh
 from shapeviewer.evaluation.records import view_stem
 from shapeviewer.evaluation.results import ResultsStore
 
-from helpers import browser_page, browser_session, free_port, needs_browser, wait_until
+from helpers import BROWSER_WAIT, browser_page, browser_session, free_port, needs_browser, wait_for_frames, wait_until
 from store_factory import VIEWS, make_store
 
 pytestmark = pytest.mark.browser
@@ -33,12 +31,12 @@ def test_index_to_view_to_mesh_download(tmp_path):
 
             page.get_by_role("tab", name="Dataset").click()
             # The index lists the store's objects; pick the mug in the Object dropdown.
-            page.get_by_text(name, exact=True).first.wait_for(timeout=10_000)
+            page.get_by_text(name, exact=True).first.wait_for(timeout=BROWSER_WAIT * 1000)
             page.get_by_role("combobox", name="Object").click()
             page.get_by_role("option", name=f"{name} ·").first.click()
             wait_until(
                 lambda: app.dataset.shown is not None and app.dataset.shown.info.object == name,
-                20,
+                BROWSER_WAIT,
                 "the view to be shown",
             )
             assert app.dataset.active and app.dataset.shown.info.view == view
@@ -48,8 +46,8 @@ def test_index_to_view_to_mesh_download(tmp_path):
             # (The Pipeline tab has a Mesh dropdown too, hidden in its tab.)
             page.get_by_role("combobox", name="Mesh").filter(visible=True).click()
             page.get_by_role("option", name="truth", exact=True).click()
-            wait_until(lambda: app.dataset.c.export_kind.value == "truth", 10, "the mesh choice")
-            with page.expect_download(timeout=20_000) as info:
+            wait_until(lambda: app.dataset.c.export_kind.value == "truth", BROWSER_WAIT, "the mesh choice")
+            with page.expect_download(timeout=BROWSER_WAIT * 1000) as info:
                 page.get_by_role("button", name="Mesh (full resolution)").click()
             download = info.value
             stem = view_stem(name, view)
@@ -59,7 +57,7 @@ def test_index_to_view_to_mesh_download(tmp_path):
             got = trimesh.load(path)
             stored = trimesh.load(root / "meshes" / f"{stem}__truth.ply")
             assert len(got.faces) == len(stored.faces) and np.allclose(got.vertices, stored.vertices)
-            time.sleep(1)
+            wait_for_frames(page)  # the view is drawn before the screenshot
             page.screenshot(path=str(tmp_path / "dataset.png"), timeout=120_000)
     finally:
         viewer.stop()

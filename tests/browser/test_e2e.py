@@ -1,4 +1,4 @@
-"""The whole user path in one real browser (issue 13, item 5): headless Chromium drives the viewer
+"""The whole user path in one real browser: headless Chromium drives the viewer
 from upload to the Dataset tab's export, and every file it downloads is parsed.
 
 The steps below run in file order on one server and one page (module fixtures); when a step fails,
@@ -38,6 +38,7 @@ from shapeviewer.evaluation.records import KINDS, view_stem
 from shapeviewer.grasp.serialize import grasps_from_json
 
 from helpers import (
+    BROWSER_WAIT,
     browser_page,
     canvas_point,
     checked,
@@ -54,6 +55,7 @@ from helpers import (
     press,
     reported_camera,
     visible_segment,
+    wait_for_frames,
     wait_for_text,
     wait_until,
 )
@@ -74,7 +76,7 @@ SEED = 0  # the generated tabletop the app opens on, and "New scene" makes again
 def session_of(app, client):
     """The session behind browser ``client``: its scene (``.scene.segments``, ``.scene.points_world``),
     ``.segment_centroid_world(sid)`` and ``.pick(origin, direction)``. Used only to aim canvas clicks."""
-    return wait_until(lambda: app.session_of(client), 60, "the browser's session")
+    return wait_until(lambda: app.session_of(client), BROWSER_WAIT, "the browser's session")
 
 
 def scene_node(client, name: str):
@@ -89,14 +91,14 @@ def scene_node(client, name: str):
 
 def download(page, button: str, folder: Path) -> Path:
     """Press ``button`` and save the file the browser receives into ``folder``."""
-    with page.expect_download(timeout=60_000) as info:
+    with page.expect_download(timeout=BROWSER_WAIT * 1000) as info:
         press(page, button)
     path = folder / info.value.suggested_filename
     info.value.save_as(path)
     return path
 
 
-def settled_camera(client, timeout: float = 20.0):
+def settled_camera(client, timeout: float = BROWSER_WAIT):
     """The browser's camera once it has taken the pose the server aimed it at (after a new scene):
     looking at its ``look_at`` point and unchanged for half a second."""
     import viser
@@ -135,7 +137,7 @@ def shown_segments(page) -> int:
 
 
 def shot(walk, name: str) -> Path:
-    time.sleep(1.5)  # let the software renderer draw the last nodes
+    wait_for_frames(walk.page)  # the software renderer has drawn the last nodes
     path = walk.shots / f"{name}.png"
     walk.page.screenshot(path=str(path), timeout=120_000)
     return path
@@ -176,7 +178,7 @@ def walk(tmp_path_factory, request):
     try:
         with browser_page(app, viewport={"width": 1000, "height": 700}, accept_downloads=True) as page:
             client = wait_until(
-                lambda: next(iter(app.server.get_clients().values()), None), 15, "the browser to connect"
+                lambda: next(iter(app.server.get_clients().values()), None), BROWSER_WAIT, "the browser to connect"
             )
             wait_for_text(page, f"default(seed={SEED})")
             folders = {k: root / k for k in ("downloads", "screenshots")}
@@ -208,12 +210,12 @@ def _after_the_previous_step(walk, request):
 def test_upload_a_capture_shows_its_segments(walk):
     page = walk.page
     before = shown_segments(page)
-    with page.expect_file_chooser(timeout=30_000) as chooser:
+    with page.expect_file_chooser(timeout=BROWSER_WAIT * 1000) as chooser:
         press(page, "Upload capture")
     chooser.value.set_files(str(MUG))
     # The Source folder names the uploaded file instead of the generated scene.
-    wait_until(lambda: page_shows(page, MUG.name, not_=f"default(seed={SEED})"), 60, "the uploaded scene")
-    wait_until(lambda: not page_shows(page, f"Loading {MUG.name}"), 30, "the loading notification to close")
+    wait_until(lambda: page_shows(page, MUG.name, not_=f"default(seed={SEED})"), BROWSER_WAIT, "the uploaded scene")
+    wait_until(lambda: not page_shows(page, f"Loading {MUG.name}"), BROWSER_WAIT, "the loading notification to close")
     n = shown_segments(page)
     assert n >= 1, (before, n)
     counts = segment_counts(page)
@@ -243,8 +245,8 @@ def test_click_a_segment_shows_cnn_grids_and_fast_mesh(walk):
     # The CNN output is off by default: the user ticks it to see the completed grid (drawn then).
     assert checked(page, "CNN input") and checked(page, "Fast mesh") and not checked(page, "CNN output")
     click(page, page.get_by_role("checkbox", name="CNN output", exact=True), "the 'CNN output' checkbox")
-    wait_until(lambda: scene_node(client, "/cnn_output").visible, 10, "the CNN output layer")
-    wait_until(lambda: scene_node(client, f"/cnn_output/seg_{sid}"), 10, "the CNN output's cubes")
+    wait_until(lambda: scene_node(client, "/cnn_output").visible, BROWSER_WAIT, "the CNN output layer")
+    wait_until(lambda: scene_node(client, f"/cnn_output/seg_{sid}"), BROWSER_WAIT, "the CNN output's cubes")
     walk.capture_segment = sid
 
 
@@ -258,10 +260,10 @@ def test_detailed_mesh_and_baselines(walk):
         ("Hull", "Hull baseline", "hull_mesh"),
     ):
         press(page, button)
-        wait_for_text(page, f"{title} ready", timeout=60)
+        wait_for_text(page, f"{title} ready")
         assert re.search(rf"Segment {sid}: [\d,]+ triangles", page_text(page)), title
         # The user asked to see it: its layer's checkbox is ticked in the browser.
-        wait_until(lambda title=title: checked(page, title), 10, f"the {title!r} checkbox")
+        wait_until(lambda title=title: checked(page, title), BROWSER_WAIT, f"the {title!r} checkbox")
         assert scene_node(walk.client, f"/{layer}/seg_{sid}") is not None, layer
         if button == "Detailed mesh":
             assert "Algorithm 1" in page_text(page)
@@ -272,7 +274,7 @@ def test_capture_exports_download_and_parse(walk):
     page, sid, folder = walk.page, walk.capture_segment, walk.downloads
     stem = f"{MUG.stem}_seg{sid}"
     click(page, page.get_by_text("Export", exact=True), "the Export folder")  # it starts closed
-    page.get_by_role("button", name="Segment points (PLY)").wait_for(timeout=10_000)
+    page.get_by_role("button", name="Segment points (PLY)").wait_for(timeout=BROWSER_WAIT * 1000)
 
     points = download(page, "Segment points (PLY)", folder)
     assert points.name == f"{stem}_points_world.ply"
@@ -312,20 +314,21 @@ def test_plan_grasps_on_a_generated_tabletop(walk):
     page, client = walk.page, walk.client
     page.get_by_role("textbox", name="Seed", exact=True).fill(str(SEED))
     press(page, "New scene")
-    wait_until(lambda: page_shows(page, f"default(seed={SEED})", not_=MUG.name), 60, "the generated scene")
+    wait_until(lambda: page_shows(page, f"default(seed={SEED})", not_=MUG.name), BROWSER_WAIT, "the generated scene")
     counts = segment_counts(page)
     assert len(counts) == shown_segments(page)
     # Pick the largest segment in the dropdown (the other way to choose one): it is completed.
     sid = max(counts, key=counts.get)
     option = next(o for o in dropdown_options(page, "Segment") if o.startswith(f"segment {sid} ("))
     choose(page, "Segment", option)
-    wait_until(lambda: f"Segment {sid}" in page_text(page), 30, f"segment {sid}'s completion")
+    wait_until(lambda: f"Segment {sid}" in page_text(page), BROWSER_WAIT, f"segment {sid}'s completion")
     assert scene_node(client, f"/fast_mesh/seg_{sid}") is not None
 
     grasps = page.get_by_role("textbox", name="Grasps", exact=True)
     grasps.fill(str(N_GRASPS))
     grasps.press("Enter")
-    time.sleep(0.5)  # viser sends a changed value within 50 ms: it reaches the server before the click
+    count = session_of(walk.app, client).grasps.panel.count
+    wait_until(lambda: count.value == N_GRASPS, BROWSER_WAIT, "the server to have the new grasp count")
     press(page, "Plan grasps")
     wait_for_text(page, "Grasps ready", timeout=120)
     wait_for_text(page, f"Segment {sid}: {N_GRASPS} barrett grasps")
@@ -340,7 +343,7 @@ def test_plan_grasps_on_a_generated_tabletop(walk):
 def test_execute_grasps_on_the_true_object(walk):
     page, sid = walk.page, walk.grasp_segment
     press(page, "Execute all")
-    wait_for_text(page, "Executed", timeout=90)
+    wait_for_text(page, "Executed")
     text = page_text(page)
     assert re.search(rf"Segment {sid} on .+: joint error [\d.]+°, pose error [\d.]+ mm, lifted \d/{N_GRASPS}", text)
     assert "On the ground truth" in text  # the selected grasp's execution, in the Grasps folder
@@ -408,7 +411,7 @@ def test_dataset_tab_shows_a_view_and_exports_it(walk):
         return len(missing) <= len(labels) // 2
 
     try:
-        wait_until(drawn, 60, "the labels drawn")
+        wait_until(drawn, BROWSER_WAIT, "the labels drawn")
     except AssertionError as e:
         raise AssertionError(f"{e}; without text above their anchors: {missing}") from None
 

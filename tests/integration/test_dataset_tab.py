@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.evaluation import run as ev
+from shapeviewer.evaluation.methods import METHODS
 from shapeviewer.evaluation.records import view_stem
 from shapeviewer.evaluation.results import ResultsStore
 from shapeviewer.grasp.serialize import grasps_from_json
@@ -160,13 +160,13 @@ def test_exports(app, store_root):
     with pytest.raises(ValueError, match="No grasps"):
         d.export_bytes("grasps", "Mirror")
     fname, data = d.export_bytes("view_csv")
-    assert fname == f"{stem}_metrics.csv" and data.decode().count("\n") == 1 + len(ev.METHODS)
+    assert fname == f"{stem}_metrics.csv" and data.decode().count("\n") == 1 + len(METHODS)
     _, data = d.export_bytes("index_csv")
     lines = data.decode().splitlines()
     assert len(lines) == 1 + len(d.objects) and lines[0].startswith("object,split,source,extent_x_m")
     assert any(line.startswith("ycb/025_mug,train,ycb,") for line in lines)
     _, data = d.export_bytes("rows_csv")
-    assert data.decode().count("\n") == 1 + len(ev.METHODS) * len(VIEWS)
+    assert data.decode().count("\n") == 1 + len(METHODS) * len(VIEWS)
     _, data = d.export_bytes("tables")
     assert b"Table III" in data
 
@@ -218,7 +218,7 @@ def test_bad_results_folder_is_a_clear_error(tmp_path):
 
 
 def test_serve_with_a_missing_results_folder_says_so(tmp_path, capsys):
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
 
     assert main(["serve", "--port", str(free_port()), "--results", str(tmp_path / "missing")]) == 2
     assert "results folder not found" in capsys.readouterr().err

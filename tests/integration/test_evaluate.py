@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-from shapeviewer.cli.main import main
+from shapeviewer.cli import main
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.evaluation.viewsets import PAPER_SETS, TABLETOP_SETS, TABLETOP_VIEW_OFFSET
@@ -54,7 +54,7 @@ def test_meshes_written(run):
         stem = rec.view_stem(n, v)
         assert f"{stem}__truth.ply" in names and f"{stem}__points.ply" in names
         for m in rec.METHODS:
-            if not any(x["error"] for x in r["rows"] if x["object"] == n and x["method"] == m):
+            if not any(x.error for x in r["rows"] if x.object == n and x.method == m):
                 assert f"{stem}__{m}.ply" in names
 
 
@@ -82,13 +82,13 @@ def test_tabletop_views_are_segmented_on_a_table_and_reported_per_kind(tmp_path)
     assert [model_split(n) for n, *_ in views] == ["train", "train", "holdout_model", "holdout_model"]
     r = ev.evaluate(tmp_path, n_per_set=1, seed=0, workers=1, progress=False, views="tabletop")
     rows = r["rows"]
-    assert {(x["view_set"], x["method"]) for x in rows} == {(s, m) for s in TABLETOP_SETS for m in rec.METHODS}
-    assert all(x["kind"] and x["sensor"] in ("kinect", "realsense") for x in rows)
-    by = {(x["view_set"], x["method"]): x for x in rows}
+    assert {(x.view_set, x.method) for x in rows} == {(s, m) for s in TABLETOP_SETS for m in rec.METHODS}
+    assert all(x.kind and x.sensor in ("kinect", "realsense") for x in rows)
+    by = {(x.view_set, x.method): x for x in rows}
     for s in TABLETOP_SETS:
-        assert not by[(s, "Hull")]["error"] and not by[(s, "Ours-detailed")]["error"]
+        assert by[(s, "Hull")].ok and by[(s, "Ours-detailed")].ok
         # The hull of the visible points is a solid the true object mostly contains, not an empty guess.
-        assert 0.1 < by[(s, "Hull")]["j80"] < 1.0
+        assert 0.1 < by[(s, "Hull")].j80 < 1.0
     md = (tmp_path / "tables.md").read_text()
     assert "Per shape kind" in md and "Tabletop, holdout models" in md and "Training Views" not in md
 
@@ -97,7 +97,7 @@ def test_ours_beats_partial_on_jaccard(run):
     _, r = run
 
     def mean(m: str) -> float:
-        return sum(x["jaccard"] for x in r["rows"] if x["method"] == m) / 3
+        return sum(x.jaccard for x in r["rows"] if x.method == m) / 3
 
     assert not math.isnan(mean("Ours-fast"))
     assert mean("Ours-fast") > mean("Partial") + 0.1
@@ -213,6 +213,7 @@ def test_grasp_means_and_pending():
 
 
 def test_grasp_success_per_kind():
+    from shapeviewer.evaluation.records import CompletionRow
     from shapeviewer.evaluation.tables import kind_grasp_table_markdown
 
     def entry(method, n, error=""):
@@ -227,9 +228,12 @@ def test_grasp_success_per_kind():
         {"object": "household/box_004", "view": 4, "grasps": [entry("Hull", 1), entry("Ours-detailed", 1)]},
     ]
     rows = [
-        {"object": "household/mug_001", "kind": "mug"},
-        {"object": "ycb/025_mug", "kind": "mug"},
-        {"object": "household/box_004", "kind": "box"},
+        CompletionRow(obj, view, "holdout_model", "Hull", kind=kind)
+        for obj, view, kind in (
+            ("household/mug_001", 1, "mug"),
+            ("ycb/025_mug", 3, "mug"),
+            ("household/box_004", 4, "box"),
+        )
     ]
 
     def grasp(obj, view, method, rank, robust_rank, lifted):
@@ -276,6 +280,7 @@ def grasp_run(run, tmp_path_factory):
     return out, options, r
 
 
+@pytest.mark.slow
 def test_grasp_stage_records(grasp_run):
     from shapeviewer.grasp.serialize import grasps_from_json
 
@@ -305,6 +310,7 @@ def test_grasp_stage_records(grasp_run):
     assert set(rec.GRASP_ROW_FIELDS) <= set(rows[0])
 
 
+@pytest.mark.slow
 def test_grasp_tables(grasp_run):
     out, _, r = grasp_run
     md = (out / "tables.md").read_text()
@@ -323,6 +329,7 @@ def test_grasp_tables(grasp_run):
     assert int(allp["n"]) == 3 and float(allp["paper_lift_success"]) == 0.714
 
 
+@pytest.mark.slow
 def test_grasp_resume_skips_done(grasp_run, monkeypatch, capsys):
     out, options, first = grasp_run
     calls = []
@@ -356,6 +363,7 @@ def test_grasp_resume_skips_done(grasp_run, monkeypatch, capsys):
     assert main(["evaluate", "--out", str(out), "--views-per-set", "1", "--grasps", "--grasp-methods", "Ours"]) == 2
 
 
+@pytest.mark.slow
 def test_ray_backend_gives_the_same_records(grasp_run, tmp_path):
     """Two of the views through a local Ray instance on one CPU, completions and Partial's grasps:
     the records are those the process backend wrote (times aside)."""

@@ -58,6 +58,7 @@ def test_examples_are_short_and_use_only_the_public_api(name):
     assert used and used <= set(shapeviewer.__all__), f"{name} uses {sorted(used - set(shapeviewer.__all__))}"
 
 
+@pytest.mark.slow
 def test_complete_capture_writes_a_closed_mesh(tmp_path):
     out = tmp_path / "out"
     stdout = run_example("complete_capture.py", out)
@@ -74,6 +75,7 @@ def test_complete_capture_writes_a_closed_mesh(tmp_path):
     assert float(size.group(4)) == pytest.approx(1e6 * mesh.volume, abs=1)
 
 
+@pytest.mark.slow
 def test_plan_grasps_prints_and_writes_the_best_grasps(tmp_path):
     out = tmp_path / "out"
     stdout = run_example("plan_grasps.py", out)
@@ -94,6 +96,7 @@ def test_plan_grasps_prints_and_writes_the_best_grasps(tmp_path):
         assert np.min(np.linalg.norm(mesh.vertices - palm, axis=1)) < 0.1
 
 
+@pytest.mark.slow
 def test_evaluate_two_views_writes_the_tables(tmp_path):
     out = tmp_path / "out"
     stdout = run_example("evaluate_two_views.py", out)

@@ -1,4 +1,4 @@
-"""Executing grasps on the true object (SPEC section 8), the lift test, and the JSON/zip export."""
+"""Executing grasps on the true object (the paper's Table IV protocol), the lift test, and the JSON/zip export."""
 
 import io
 import json

@@ -1,4 +1,4 @@
-"""Grasps that survive the completion's uncertainty (issue 14): robustness over sample completions,
+"""Grasps that survive the completion's uncertainty: robustness over sample completions,
 the robust ranking, and the evaluation's robust variant of Table V's best grasp."""
 
 import csv
@@ -229,6 +229,7 @@ def _robust_evaluation(folder, methods: tuple[str, ...], widen_below: float | No
     return options, tables, name, view, rec.view_stem(name, view)
 
 
+@pytest.mark.slow
 def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
     options, tables, name, view, stem = _robust_evaluation(tmp_path, ("Ours-fast",))
     with np.load(tmp_path / rec.samples_file(stem)) as saved:
@@ -255,6 +256,7 @@ def test_evaluate_records_the_robust_best_grasp_beside_the_planners(tmp_path):
     assert ev.pending_grasps({"grasps": [plain]}, options) == ["Ours-fast"]
 
 
+@pytest.mark.slow
 def test_evaluate_widens_the_search_when_no_grasp_holds_up_on_the_samples(tmp_path):
     """When even the most robust grasp lifts too few of its sample tests (here: any share below
     101 %, so always), as many grasps again are planned on the grasp envelope, executed on the true
@@ -283,6 +285,7 @@ def test_evaluate_widens_the_search_when_no_grasp_holds_up_on_the_samples(tmp_pa
     assert entry["n_wider"] == 0 and "wider" not in json.loads((tmp_path / "never" / entry["file"]).read_text())["meta"]
 
 
+@pytest.mark.slow
 def test_evaluate_grasps_the_envelope_of_the_samples(tmp_path):
     """``Ours-envelope``: the view's grasp envelope is written beside its meshes, closed and larger
     than the detailed completion, grasps are planned on it, executed on the true mesh and ranked

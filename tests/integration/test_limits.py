@@ -99,6 +99,7 @@ def test_files_over_the_limit_are_refused_unread(tmp_path: Path, monkeypatch) ->
             load_capture(path)
 
 
+@pytest.mark.slow
 def test_segmentation_clusters_a_bounded_number_of_voxels(monkeypatch) -> None:
     sizes: list[int] = []
     clusters = segment_module._euclidean_clusters
@@ -181,8 +182,10 @@ HUGE_LOAD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_5m_point_capture_is_accepted_within_10_s_and_2_gb(tmp_path: Path) -> None:
-    """The issue's target, in a process of its own so that its peak memory is the server's."""
+    """The target (5 million points in <= 10 s and 2 GB), in a process of its own so that its peak
+    memory is the server's."""
     big = dense_copy(21)[:5_000_000]
     assert len(big) == 5_000_000
     write_pcd(tmp_path / "huge.pcd", big)

@@ -3,15 +3,18 @@ process boundary; a worker that hangs or dies is replaced; shutdown leaves no ch
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
 
 import pytest
 
+from shapeviewer.errors import Cancelled, ShapeviewerError
 from shapeviewer.runtime import processes
 from shapeviewer.runtime.interrupt import alive
-from shapeviewer.runtime.processes import JobCancelled, ProcessPool, RemoteTraceback, WorkerDied
+from shapeviewer.runtime.processes import ProcessPool, RemoteTraceback, WorkerDied
+from shapeviewer.runtime.progress import scaled
 
 
 def report_and_return_pid(steps: int, *, progress, cancel) -> int:
@@ -31,6 +34,15 @@ def wait_for_cancel(*, progress, cancel) -> str:
             return "never cancelled"
         time.sleep(0.01)
     return "stopped"
+
+
+def stop_when_cancelled(*, progress, cancel) -> None:
+    """Stop as the grasp planner and the robustness ranking do: raise Cancelled once asked."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30:
+        if cancel():
+            raise Cancelled("stopped on request")
+        time.sleep(0.01)
 
 
 def ignore_cancel(*, progress, cancel) -> None:
@@ -82,13 +94,60 @@ def test_cancel_reaches_the_worker(pool):
     assert time.monotonic() - t0 < 5
 
 
+def test_a_job_that_stops_on_cancel_raises_cancelled_in_the_caller(pool):
+    cancel = threading.Event()
+    threading.Timer(0.3, cancel.set).start()
+    with pytest.raises(Cancelled, match="stopped on request") as info:
+        pool.run(stop_when_cancelled, cancel=cancel)
+    assert isinstance(info.value.__cause__, RemoteTraceback)  # raised in the worker, not by the pool
+    assert pool.run(report_and_return_pid, 1) != os.getpid()  # the worker stopped by itself: kept
+
+
+def test_a_job_cancelled_before_it_has_a_worker_never_starts(pool):
+    cancel = threading.Event()
+    cancel.set()
+    release = threading.Event()
+
+    def hold() -> None:
+        with contextlib.suppress(Cancelled):
+            pool.run(stop_when_cancelled, cancel=release)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        t0 = time.monotonic()
+        while not pool.full:  # until the one worker is taken
+            assert time.monotonic() - t0 < 10
+            time.sleep(0.01)
+        with pytest.raises(Cancelled, match="waiting for a worker"):
+            pool.run(report_and_return_pid, 1, cancel=cancel)
+    finally:
+        release.set()
+        holder.join(30)
+
+
+def test_progress_of_a_stage_is_its_share_of_the_job():
+    seen: list[float] = []
+    stage = scaled(seen.append, 0.25, 0.75)
+    assert stage is not None and scaled(None, 0.0, 0.5) is None
+    for fraction in (0.0, 0.5, 1.0):
+        stage(fraction)
+    assert seen == [0.25, 0.5, 0.75]
+
+
+def test_the_pools_errors_are_the_packages_and_keep_their_builtin_base():
+    assert issubclass(WorkerDied, ShapeviewerError) and issubclass(WorkerDied, RuntimeError)
+    assert issubclass(Cancelled, ShapeviewerError) and issubclass(RemoteTraceback, ShapeviewerError)
+    assert processes.JobCancelled is Cancelled
+
+
 def test_a_worker_that_ignores_cancel_is_killed_and_replaced(pool, monkeypatch):
     monkeypatch.setattr(processes, "CANCEL_GRACE_SECONDS", 0.5)
     first = pool.run(report_and_return_pid, 1)
     cancel = threading.Event()
     threading.Timer(0.2, cancel.set).start()
     t0 = time.monotonic()
-    with pytest.raises(JobCancelled):
+    with pytest.raises(Cancelled):
         pool.run(ignore_cancel, cancel=cancel)
     assert time.monotonic() - t0 < 5
     second = pool.run(report_and_return_pid, 1)
@@ -106,7 +165,7 @@ def test_killing_a_worker_also_kills_the_processes_it_started(pool, monkeypatch)
         child.append(int(pid))
         cancel.set()
 
-    with pytest.raises(JobCancelled):
+    with pytest.raises(Cancelled):
         pool.run(start_a_child, progress=started, cancel=cancel)
     time.sleep(0.2)
     assert not alive(child[0])

@@ -16,7 +16,18 @@ import numpy as np
 import pytest
 import trimesh
 
-from shapeviewer.evaluation.records import METHODS, METRICS, ViewFileError, parse_view_file, view_stem
+from shapeviewer.evaluation import methods
+from shapeviewer.evaluation.records import (
+    METHODS,
+    METRICS,
+    ROW_FIELDS,
+    CompletionRow,
+    ViewFileError,
+    completion_rows,
+    parse_view_file,
+    view_record,
+    view_stem,
+)
 from shapeviewer.evaluation.results import ResultsStore
 from shapeviewer.evaluation.run import T_WORLD_CAM
 from shapeviewer.evaluation.tables import summarize
@@ -39,16 +50,17 @@ def test_round_trip_of_both_formats(folder):
     with sqlite3.connect(root / "index.sqlite") as db:
         assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     # Every completion row comes back as written (the old-format view included), NaN where failed.
-    got = {(r["object"], r["view"], r["method"]): r for r in store.rows()}
+    got = {(r.object, r.view, r.method): r for r in store.rows()}
     assert len(got) == 4 * len(METHODS)
     for rec in records.values():
         for row in rec["rows"]:
             back = got[(row["object"], row["view"], row["method"])]
             for k in (*METRICS, "seconds"):
-                assert (math.isnan(back[k]) and math.isnan(row[k])) or back[k] == pytest.approx(row[k]), k
-            assert back["error"] == row["error"] and back["view_set"] == row["view_set"]
+                mine = getattr(back, k)
+                assert (math.isnan(mine) and math.isnan(row[k])) or mine == pytest.approx(row[k]), k
+            assert back.error == row["error"] and back.view_set == row["view_set"]
     # The tables are the evaluation's own summary of those rows.
-    expect = summarize([r for rec in records.values() for r in rec["rows"]])
+    expect = summarize([r for rec in records.values() for r in completion_rows(rec)])
     got_summary = store.summary()
     for s in VIEW_SETS:
         for m in METHODS:
@@ -252,3 +264,52 @@ def test_files_are_written_atomically(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         fileio.atomic_write(path, "[2]")
     assert path.read_bytes() == b"[1]" and [p.name for p in path.parent.iterdir()] == ["a.json"]
+
+
+def test_completion_rows_round_trip(tmp_path):
+    """A row as the evaluation writes it today reads back identically (NaN included), through the
+    record and the JSON text of a view file; a first-format row gets the defaults of what it lacks."""
+    nan = math.nan
+    written = [
+        {"object": "ycb/025_mug", "view": 3, "view_set": "training_view", "kind": "mug", "sensor": "kinect",
+         "method": "Ours-fast", "jaccard": 0.71, "j80": 0.69, "hausdorff_mean_mm": 3.2, "hausdorff_max_mm": 11.0,
+         "hausdorff_rms_mm": 4.1, "geodesic": 0.08, "seconds": 0.42, "error": "", "prior": "revolution",
+         "support_plane": [0.0, -1.0, 0.0, 0.5]},
+        {"object": "ycb/025_mug", "view": 3, "view_set": "training_view", "kind": "mug", "sensor": "kinect",
+         "method": "Mirror", "jaccard": nan, "j80": nan, "hausdorff_mean_mm": nan, "hausdorff_max_mm": nan,
+         "hausdorff_rms_mm": nan, "geodesic": nan, "seconds": nan, "error": "ValueError: too few points",
+         "prior": ""},
+    ]  # fmt: skip
+    expect = [{k: v for k, v in r.items() if k != "support_plane"} for r in written]
+    record = view_record(tmp_path, "ycb/025_mug", 3, "training_view", 0, [dict(r) for r in written])
+    assert record["support_plane"] == [0.0, -1.0, 0.0, 0.5]
+    assert json.dumps(record["rows"]) == json.dumps(expect)  # every key, in ROW_FIELDS order
+    assert [list(r) for r in record["rows"]] == [list(ROW_FIELDS)] * 2
+    parsed = parse_view_file(json.dumps(record), tmp_path)
+    rows = completion_rows(parsed)
+    assert [r.method for r in rows] == ["Ours-fast", "Mirror"] and rows[0].prior == "revolution"
+    assert not rows[1].ok and math.isnan(rows[1].jaccard)
+    assert json.dumps([r.to_json() for r in rows]) == json.dumps(expect)
+    assert all(CompletionRow.from_json(r.to_json()) == r for r in rows[:1])  # frozen, comparable (no NaN)
+    with pytest.raises(AttributeError):
+        rows[0].jaccard = 1.0  # type: ignore[misc]
+    # The first format: no kind, sensor or prior; the view set comes from the record when missing.
+    old = {k: written[0][k] for k in ("object", "view", "method", *METRICS, "seconds", "error")}
+    first = completion_rows(parse_view_file(json.dumps([old]), tmp_path))[0]
+    assert (first.kind, first.sensor, first.prior, first.view_set) == ("", "", "", "training_view")
+    assert first.jaccard == 0.71
+    # A row of a method no evaluation ever wrote makes the file unreadable, with the reason.
+    with pytest.raises(ViewFileError, match="unknown method"):
+        parse_view_file(json.dumps([{**old, "method": "Ours"}]), tmp_path)
+
+
+def test_one_method_vocabulary():
+    """Results files keep their method names; the viewer's keys, titles and short labels map to them."""
+    assert methods.METHODS == ("Partial", "Mirror", "Hull", "Ours-fast", "Ours-detailed")
+    assert methods.ENVELOPE == "Ours-envelope" and methods.ALL_METHODS == (*methods.METHODS, methods.ENVELOPE)
+    assert methods.CNN_METHODS == ("Ours-fast", "Ours-detailed", "Ours-envelope")
+    assert set(methods.MESH_KINDS) == {info.key for info in methods.METHOD_INFO.values()}
+    for m in methods.ALL_METHODS:
+        assert methods.method_of(methods.key_of(m)) == m
+    assert methods.method_of("fast") == "Ours-fast" and methods.key_of("Hull") == "hull"
+    assert methods.method_rank("Ours-envelope") == 5 and methods.method_rank("something else") == 6

@@ -177,7 +177,7 @@ def test_with_data_dir_only_its_files_are_offered_and_loaded(tmp_path):
 
 
 def test_serve_has_a_data_dir_option():
-    from shapeviewer.cli.main import build_parser
+    from shapeviewer.cli.parser import build_parser
 
     args = build_parser().parse_args(["serve", "--data-dir", "captures"])
     assert args.data_dir == "captures"

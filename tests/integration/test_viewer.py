@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import time
 
@@ -265,14 +266,15 @@ def test_model_panel_says_whether_weights_are_trained(app):
 def test_detailed_mesh_is_drawn_stored_timed_and_exported(app):
     sid = completed_segment(app)
     mesh = app.compute_mesh("detailed", sid)
-    c = app.completions[sid]
-    assert mesh is not None and c.detailed_mesh is mesh and mesh.is_watertight
+    result = app.results[sid]
+    assert mesh is not None and app.mesh("detailed", sid) is mesh and mesh.is_watertight
+    assert result.mesh("detailed") is mesh and result.seconds["detailed"] > 0
     # Drawn in the world frame like the fast mesh, and its layer is switched on.
     drawn = node(app, f"/detailed_mesh/seg_{sid}")
     assert np.allclose(np.asarray(drawn.vertices), transform_points(app.scene.T_world_cam, mesh.vertices), atol=1e-5)
     assert app.panel.layers["detailed_mesh"].value and node(app, "/detailed_mesh").visible
     # The timings table splits the time by Algorithm 1's steps.
-    steps = c.timings["detailed_steps"]
+    steps = result.detailed_steps
     for key in ("density", "upsample", "merge", "fill_gaps", "smooth", "marching_cubes"):
         assert steps[key] >= 0, key
     assert "detailed mesh" in app.panel.timings.content and "fill gaps" in app.panel.timings.content
@@ -283,16 +285,21 @@ def test_detailed_mesh_is_drawn_stored_timed_and_exported(app):
 
 def test_baselines_complete_the_segment_first_and_get_their_own_layers(app):
     sid = completed_segment(app)
-    app.completions.pop(sid)
+    app.results.pop(sid)
     for kind in ("partial", "mirror"):
         mesh = app.compute_mesh(kind, sid)
-        assert mesh is not None and getattr(app.completions[sid], f"{kind}_mesh") is mesh
+        assert mesh is not None and app.mesh(kind, sid) is mesh
         assert node(app, f"/{kind}_mesh/seg_{sid}") is not None
         assert app.panel.layers[f"{kind}_mesh"].value
     assert app.completions[sid].fast_mesh is not None
-    # A new completion of the segment has no baselines yet: their stale nodes go too.
+    # A new completion of the segment has no baselines yet: their stale nodes go too, and the
+    # completion itself is never written to (the meshes are the viewer's, beside it).
+    old = app.completions[sid]
     app.complete(sid)
-    assert node(app, f"/partial_mesh/seg_{sid}") is None
+    assert node(app, f"/partial_mesh/seg_{sid}") is None and app.mesh("partial", sid) is None
+    assert app.completions[sid] is not old
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        old.fast_mesh = None  # type: ignore[misc]
     with pytest.raises(ValueError, match="no mirror baseline yet"):
         app.export_bytes("mesh", sid, mesh="mirror")
 

@@ -89,6 +89,7 @@ def test_segments_of_the_default_scene_map_to_their_true_objects(app):
     assert len(seen) == len(app.scene.segments)  # one object per segment
 
 
+@pytest.mark.slow
 def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
     sid = planned.segment_id
     c = app.completions[sid]
@@ -125,6 +126,7 @@ def test_planning_draws_hands_at_the_grasps_in_the_world_frame(app, planned):
     assert not panel.plan.disabled and panel.cancel.disabled and not panel.progress.visible
 
 
+@pytest.mark.slow
 def test_selection_highlights_one_grasp(app, planned):
     sid = planned.segment_id
     assert_two_grasps(planned)
@@ -142,6 +144,7 @@ def test_selection_highlights_one_grasp(app, planned):
     assert node(app, f"/grasps/seg_{sid}/g1").visible is True
 
 
+@pytest.mark.slow
 def test_clicking_a_hand_selects_its_grasp(app, planned):
     assert_two_grasps(planned)
     g = planned.grasps[1]
@@ -161,6 +164,7 @@ def test_clicking_a_hand_selects_its_grasp(app, planned):
         app.grasps.select(0)
 
 
+@pytest.mark.slow
 def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, planned):
     sid = largest_segments(app)[1]
     assert sid not in app.completions
@@ -184,13 +188,14 @@ def test_cancel_stops_planning_and_the_rest_of_the_viewer_keeps_working(app, pla
         job.cancel()
         job.wait(60)
     assert job.cancelled and job.result is None and job.error is None
-    assert app.completions[sid].partial_mesh is not None and node(app, f"/partial_mesh/seg_{sid}") is not None
+    assert app.mesh("partial", sid) is not None and node(app, f"/partial_mesh/seg_{sid}") is not None
     assert sid not in app.grasps.sets and node(app, f"/grasps/seg_{sid}") is None
     assert not app.grasps.panel.plan.disabled and app.grasps.panel.cancel.disabled
     assert not app.cancel_grasps()  # nothing runs any more
     assert app.grasps.current == planned.segment_id  # the earlier grasps are still listed
 
 
+@pytest.mark.slow
 def test_execute_on_ground_truth(app, planned):
     sid = planned.segment_id
     job = app.execute_grasps(sid, [0])
@@ -221,6 +226,7 @@ def test_execute_on_ground_truth(app, planned):
     assert node(app, f"/grasps/seg_{sid}/exec_g1").visible is False  # not selected
 
 
+@pytest.mark.slow
 def test_json_export_round_trips_with_executions(app, planned):
     sid = planned.segment_id
     name, data = app.export_grasps(sid, "json")
@@ -242,6 +248,7 @@ def test_json_export_round_trips_with_executions(app, planned):
         app.export_grasps(10_000)
 
 
+@pytest.mark.slow
 def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
     sid = planned.segment_id
     panel = app.grasps.panel
@@ -300,6 +307,7 @@ def test_rank_by_robustness_lists_the_most_robust_grasp_first(app, planned):
         robustness(planned.grasps, [planned.mesh_world], planned.mesh_world, processes=2, cancel=lambda: False)
 
 
+@pytest.mark.slow
 def test_rank_widens_the_search_to_the_envelope_when_no_grasp_holds_up(app, planned):
     """When the most robust grasp lifts too few of its sample tests (here any share below 101 %, so
     always), Rank by robustness plans as many grasps again on the grasp envelope, draws and ranks
@@ -335,6 +343,7 @@ def test_rank_widens_the_search_to_the_envelope_when_no_grasp_holds_up(app, plan
         app.grasps.widen_below = WIDEN_BELOW
 
 
+@pytest.mark.slow
 def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(app, planned, monkeypatch):
     class Gone:
         """A browser that disconnected: every message to it fails."""
@@ -358,6 +367,7 @@ def test_a_failing_job_is_a_red_notification_and_a_vanished_browser_is_harmless(
     app.grasps.jobs.busy.release()
 
 
+@pytest.mark.slow
 def test_real_capture_has_no_ground_truth(real_data):
     with headless_session(cloud=real_data / "milk_cartoon_all_small_clorox.pcd") as app:
         sid = largest_segments(app)[0]
@@ -375,6 +385,7 @@ def test_real_capture_has_no_ground_truth(real_data):
         assert node(app, f"/grasps/seg_{sid}/truth") is None
 
 
+@pytest.mark.slow
 def test_grasps_planned_on_the_grasp_envelope(app):
     """Plan on: envelope makes the segment's grasp envelope first (from its sample completions),
     draws it see-through around the fast mesh, and plans grasps on it that the robust ranking can
@@ -383,7 +394,7 @@ def test_grasps_planned_on_the_grasp_envelope(app):
     job = app.plan_grasps(sid, "barrett", "envelope", N_GRASPS, seed=0)
     assert job is not None and job.done.is_set() and job.error is None, job and job.error
     c = app.completions[sid]
-    envelope = c.envelope_mesh
+    envelope = app.mesh("envelope", sid)
     assert envelope is not None and envelope.is_watertight and c.samples is not None
     assert envelope.volume > c.fast_mesh.volume
     drawn = node(app, f"/envelope_mesh/seg_{sid}")

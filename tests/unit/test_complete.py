@@ -180,7 +180,7 @@ def test_cli_complete_writes_sample_completions_and_their_spread(tmp_path):
 
     import trimesh
 
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
     from shapeviewer.completion.model import sample_spread
 
     capture = Path(__file__).resolve().parents[2] / "static_assets/captures/table_scene_mug_stereo_textured.pcd"

@@ -117,6 +117,7 @@ def test_a_wooden_block_on_the_table_is_completed_as_its_box():
     assert off.cuboid is None
 
 
+@pytest.mark.slow
 def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_path):
     """A tabletop view of a box in the evaluation (and the sample store): our completions' rows say
     they are the fitted box, the results store keeps it, and the Dataset tab's label shows it."""
@@ -134,6 +135,6 @@ def test_an_evaluated_box_view_records_its_box_and_the_dataset_tab_says_so(tmp_p
     store.sync()
     detailed = next(c for c in store.completions(name, view) if c.method == "Ours-detailed")
     assert detailed.prior == "box" and detailed.j80 > 0.85 and "fitted box" in completion_label(detailed)
-    assert {r["prior"] for r in store.rows() if r["method"] == "Hull"} == {""}
+    assert {r.prior for r in store.rows() if r.method == "Hull"} == {""}
     text = view_markdown(store.object(name), store.view(name, view), store.completions(name, view), [])
     assert "Ours: the box fitted to the points" in text

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from shapeviewer.cli.main import main
+from shapeviewer.cli import main
 from shapeviewer.completion.voxel import GridFrame
 from shapeviewer.sim import catalogue
 from shapeviewer.training.generate import (
@@ -130,6 +130,7 @@ def test_split_rule_is_stable():
     assert 0.15 < views.count("holdout_view") / 726 < 0.25
 
 
+@pytest.mark.slow
 def test_ray_backend_gives_the_same_shards(generated, tmp_path):
     ray = pytest.importorskip("ray")
     out, cfg, _ = generated

@@ -47,8 +47,17 @@ def test_missing_or_corrupt_weights_are_clear_errors(tmp_path):
     bad.write_bytes(b"this is not a torch file")
     with pytest.raises(WeightsError, match="cannot load"):
         load_completer(bad)
+    # A pickle that is not tensors (here random bytes torch reads as one): refused, and the message
+    # never advises loading it with weights_only=False (which would run the file's code).
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(np.random.default_rng(0).integers(0, 256, 1000, dtype=np.uint8).tobytes())
+    with pytest.raises(WeightsError) as refused:
+        load_completer(garbage)
+    assert "weights_only=False" not in str(refused.value) and "torch.load" in str(refused.value)
+    assert refused.value.__cause__ is None and refused.value.__suppress_context__
 
 
+@pytest.mark.slow
 def test_varley2017_is_the_papers_network_and_trains_on_cpu():
     torch.manual_seed(0)
     net = build("varley2017")

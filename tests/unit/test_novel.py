@@ -37,7 +37,7 @@ def test_novel_kinds_are_new_and_never_listed_for_training():
 
 
 def test_a_novel_object_completes_from_its_tabletop_mask_better_than_its_hull():
-    """What ``benchmarks/novel_kinds.py`` does for one view: the ring's pixels and the table the
+    """What ``benchmarks/studies/novel_kinds.py`` does for one view: the ring's pixels and the table the
     segmentation found, completed through the public entry point into a closed mesh that overlaps
     the true ring more than the hull of its visible points does."""
     from shapeviewer.completion.baselines import hull_mesh

@@ -34,6 +34,7 @@ def tiny_data(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_a_few_training_steps_lower_the_loss_and_checkpoints_round_trip(tiny_data, tmp_path):
     run = tmp_path / "run"
     cfg = TrainConfig(
@@ -175,7 +176,7 @@ def test_a_network_keeps_the_grid_placement_of_its_data(tiny_data, tmp_path, cap
     c = load_completer(tmp_path / "run" / "best_loss.pt")
     assert c.depth_shift == other
     # Scoring it on views in another placement is refused with the command that fixes it.
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
 
     assert main(["evaluate-grids", "--data", str(tiny_data), "--weights", str(tmp_path / "run" / "best_loss.pt")]) != 0
     assert f"generate --depth-shift {other:g}" in capsys.readouterr().err
@@ -205,7 +206,7 @@ def test_the_output_grid_is_the_best_estimate_of_the_papers_y(tiny_data):
 
 
 def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
 
     r = evaluate_grids(load_completer(), load_grid_sets(tiny_data), max_views=50)
     for v in r.values():  # every view counted once, under its object's kind
@@ -225,10 +226,11 @@ def test_evaluate_grids_by_shape_kind(tiny_data, capsys):
     assert "no views of kinds teapot" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_evaluate_grids_scores_the_mean_of_the_mirrored_answers(tiny_data, capsys):
     """``samples=8`` scores the occupancy the detailed mesh meshes (the mean of the 8 mirrored
     answers), view by view, and it completes these views at least as well as the single answer."""
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
 
     c = load_completer()
     sets = load_grid_sets(tiny_data)
@@ -250,9 +252,9 @@ def test_evaluate_grids_scores_the_mean_of_the_mirrored_answers(tiny_data, capsy
 
 
 def test_averaged_weights_are_the_mean_of_the_networks_and_load(tmp_path, capsys):
-    from shapeviewer.cli.main import main
+    from shapeviewer.cli import main
     from shapeviewer.completion.model import build, save_weights
-    from shapeviewer.training.train import average_weights
+    from shapeviewer.training.averaging import average_weights
 
     nets = []
     for seed in (0, 1):

@@ -1,4 +1,4 @@
-"""The Dataset tab: browse a results store (:mod:`shapeviewer.evaluation.results`) like the paper's website (SPEC §9).
+"""The Dataset tab: browse a results store (:mod:`shapeviewer.evaluation.results`) like the paper's website.
 
 The tab lists the catalogue objects with their results, and shows one view at a time in 3D, left
 to right as in the paper's Fig. 1: the ground truth, the partial view (points), then each method's

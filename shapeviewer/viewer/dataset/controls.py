@@ -13,12 +13,15 @@ import io
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, TypedDict, cast
 
 import numpy as np
 import viser
 
-from ...evaluation.records import KINDS, METHODS
+from ...evaluation.methods import METHODS, Method
+from ...evaluation.records import KINDS, Metric
+from ...evaluation.results import Order
+from ...evaluation.viewsets import Split
 from ...export import MESH_FORMATS
 from ..gui import set_value
 
@@ -27,10 +30,14 @@ if TYPE_CHECKING:
     from viser._gui_handles import GuiProgressBarHandle
     from viser._messages import HotkeyKey, KeyModifier
 
-SPLITS = {"all objects": None, "training models": "train", "holdout models": "holdout_model"}
-ORDERS = {"worst first": "worst", "best first": "best", "name": "name", "most views": "views"}
+SPLITS: dict[str, Split | None] = {"all objects": None, "training models": "train", "holdout models": "holdout_model"}
+ORDERS: dict[str, Order] = {"worst first": "worst", "best first": "best", "name": "name", "most views": "views"}
 # Metric -> (min, max, step) of the range slider, in the metric's unit.
-SLIDER = {"jaccard": (0.0, 1.0, 0.01), "hausdorff_mean_mm": (0.0, 100.0, 0.5), "geodesic": (0.0, 1.0, 0.01)}
+SLIDER: dict[Metric, tuple[float, float, float]] = {
+    "jaccard": (0.0, 1.0, 0.01),
+    "hausdorff_mean_mm": (0.0, 100.0, 0.5),
+    "geodesic": (0.0, 1.0, 0.01),
+}
 STEPS = {"◀ object": ("object", -1), "◀ view": ("view", -1), "view ▶": ("view", 1), "object ▶": ("object", 1)}
 # Command palette entries: (label, hotkey, modifier, what, delta).
 HOTKEYS: tuple[tuple[str, HotkeyKey, KeyModifier | None, str, int], ...] = (
@@ -40,6 +47,20 @@ HOTKEYS: tuple[tuple[str, HotkeyKey, KeyModifier | None, str, int], ...] = (
     ("Previous object", "P", "shift", "object", -1),
 )
 NO_OBJECT = "(no object)"
+
+
+class IndexFilters(TypedDict):
+    """The index filters the controls set: keyword arguments of :meth:`ResultsStore.objects`."""
+
+    search: str
+    split: Split | None
+    with_results: bool
+    method: Method
+    metric: Metric
+    order: Order
+    metric_range: tuple[float, float] | None
+
+
 NO_VIEW = "(no view)"
 
 
@@ -121,17 +142,17 @@ class DatasetControls:
             (self.export_tables, "tables"),
         )
 
-    def filters(self) -> dict:
+    def filters(self) -> IndexFilters:
         """The index filters, as keyword arguments of :meth:`ResultsStore.objects`."""
-        rng = tuple(self.range.value) if self.limit.value else None
+        lo, hi = self.range.value
         return {
             "search": self.search.value,
             "split": SPLITS[self.split.value],
             "with_results": self.with_results.value,
-            "method": self.method.value,
-            "metric": self.metric.value,
+            "method": cast(Method, self.method.value),
+            "metric": cast(Metric, self.metric.value),
             "order": ORDERS[self.order.value],
-            "metric_range": rng,
+            "metric_range": (float(lo), float(hi)) if self.limit.value else None,
         }
 
     @contextlib.contextmanager
@@ -273,7 +294,7 @@ def build_controls(gui: viser.GuiApi, tab: viser.GuiTabHandle, pipeline_tab: vis
         show = gui.add_button("Show the dataset in 3D", icon=viser.Icon.EYE)
         with gui.add_folder("Find an object"):
             search = gui.add_text("Search", "", hint="Part of an object's name, e.g. mug or ycb/0")
-            split = gui.add_dropdown("Split", tuple(SPLITS), hint="The object's split (SPEC §4)")
+            split = gui.add_dropdown("Split", tuple(SPLITS), hint="The object's split: training or holdout models")
             with_results = gui.add_checkbox(
                 "Only with results", True, hint="Hide catalogue objects that have no evaluated view"
             )

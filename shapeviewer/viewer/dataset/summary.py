@@ -12,23 +12,21 @@ import math
 
 import numpy as np
 
-from ...evaluation.records import METHODS
-from ...evaluation.results import HIGHER_IS_BETTER, METRIC_TITLES
+from ...evaluation.methods import GRASP_TABLE_METHODS, METHOD_INFO, METHODS, Method
+from ...evaluation.paper import paper_figure, paper_grasp
+from ...evaluation.records import HIGHER_IS_BETTER, METRIC_TITLES, Metric
 from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
-from ...evaluation.tables import SHORT_METHOD, fmt, fmt_share
-from ...evaluation.viewsets import SET_TITLES
+from ...evaluation.tables import fmt, fmt_metric, fmt_share
+from ...evaluation.viewsets import SET_TITLES, VIEW_SETS, ViewSet
 
-TITLES = {
+# A column's title: the truth, the partial view, each method's (:data:`~shapeviewer.evaluation.methods.METHOD_INFO`).
+TITLES: dict[str, str] = {
     "truth": "Ground truth",
     "points": "Partial view",
-    "Partial": "Partial",
-    "Mirror": "Mirror",
-    "Hull": "Hull",
-    "Ours-fast": "Ours (fast)",
-    "Ours-detailed": "Ours (detailed)",
+    **{m: info.title for m, info in METHOD_INFO.items()},
 }
 # Partial and Mirror keep the pipeline tab's baseline colours; ours are warm, the truth neutral.
-COLORS = {
+COLORS: dict[str, tuple[int, int, int]] = {
     "truth": (150, 175, 150),
     "points": (40, 110, 220),
     "Partial": (160, 160, 160),
@@ -46,7 +44,19 @@ PRIORS = {
 INDEX_ROWS = 12  # rows of the index table in the panel
 BARS_OBJECTS = 25  # objects in the per-object chart
 # Short column titles for the narrow panel.
-SHORT = {**SHORT_METHOD, "jaccard": "J", "hausdorff_mean_mm": "H mm", "geodesic": "G"}
+SHORT: dict[str, str] = {
+    **{m: info.short for m, info in METHOD_INFO.items()},
+    "jaccard": "J",
+    "hausdorff_mean_mm": "H mm",
+    "geodesic": "G",
+}
+SHORT_SET: dict[ViewSet, str] = {
+    "training_view": "train",
+    "holdout_view": "h. view",
+    "holdout_model": "h. model",
+    "tabletop_train_object": "table",
+    "tabletop_holdout_model": "table h. model",
+}
 
 
 # Labels sit above their column, which is about 25 characters wide on a laptop screen: short lines.
@@ -85,7 +95,7 @@ def column_label(kind: str, n_points: int, completion: CompletionResult | None, 
     return text
 
 
-def object_label(o: ObjectSummary, method: str, metric: str) -> str:
+def object_label(o: ObjectSummary, method: Method, metric: Metric) -> str:
     """An object's entry in the Object dropdown: name, number of views, ``method``'s mean ``metric``."""
     v = o.mean(method, metric)
     return f"{o.name} · {o.views} view{'s' if o.views != 1 else ''}" + (
@@ -113,7 +123,7 @@ def status_markdown(counts: dict[str, int], root: str, building: bool) -> str:
     return text
 
 
-def worst_first(objects: list[ObjectSummary], method: str, metric: str) -> list[ObjectSummary]:
+def worst_first(objects: list[ObjectSummary], method: Method, metric: Metric) -> list[ObjectSummary]:
     """``objects`` ordered by ``method``'s mean ``metric``, worst first; objects without it last."""
 
     def key(o: ObjectSummary) -> tuple:
@@ -125,7 +135,9 @@ def worst_first(objects: list[ObjectSummary], method: str, metric: str) -> list[
     return sorted(objects, key=key)
 
 
-def index_markdown(objects: list[ObjectSummary], method: str, metric: str, selected: str | None, total: int) -> str:
+def index_markdown(
+    objects: list[ObjectSummary], method: Method, metric: Metric, selected: str | None, total: int
+) -> str:
     """The first rows of the filtered index as a markdown table (the selected object in bold)."""
     if not objects:
         return "_No object matches._"
@@ -198,8 +210,8 @@ def view_markdown(
 
 def bars_png(
     objects: list[ObjectSummary],
-    metric: str,
-    methods: tuple[str, ...] = METHODS,
+    metric: Metric,
+    methods: tuple[Method, ...] = METHODS,
     limit: int = BARS_OBJECTS,
     width_px: int = 420,
 ) -> bytes | None:
@@ -241,9 +253,71 @@ def bars_png(
     return buf.getvalue()
 
 
-def bars_caption(method: str, metric: str) -> str:
+def bars_caption(method: Method, metric: Metric) -> str:
     """The line above the per-object bars."""
     return (
         f"{METRIC_TITLES[metric]}, mean per object, worst {method} first "
         f"(the first {BARS_OBJECTS} objects of the index)."
     )
+
+
+def panel_markdown(summary: dict, grasps: dict) -> str:
+    """Per-set means (paper Tables I–III, and IV when grasps exist), compact enough for a side panel.
+
+    ``summary``: :func:`~shapeviewer.evaluation.tables.summarize`'s format; ``grasps``:
+    :meth:`ResultsStore.grasp_summary`'s (``{view_set: {method: {"joint_error_deg",
+    "pose_error_mm", "lift_success", ...}}}``, means over views). The "paper" column is the paper's
+    "Ours" (theirs, on their data).
+    """
+    counts = {s: max(summary[s][m]["n"] + summary[s][m]["failed"] for m in METHODS) for s in VIEW_SETS if s in summary}
+    sets = [s for s, n in counts.items() if n]
+    out = [
+        "Views per set: "
+        + ", ".join(f"{SET_TITLES[s]} ({SHORT_SET[s]}) {counts[s]}" for s in sets)
+        + ". Means over the views where the method succeeded.",
+        "",
+    ]
+    for number, metric, title in (
+        ("I", "jaccard", "Jaccard ↑"),
+        ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
+        ("III", "geodesic", "Geodesic divergence ↓"),
+    ):
+        out += [
+            f"**Table {number}: {title}**",
+            "",
+            "| set | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
+            "|---|" + "---:|" * (len(METHODS) + 1),
+        ]
+        for s in sets:
+            cells = [fmt_metric(summary[s][m][metric] if summary[s][m]["n"] else None, metric) for m in METHODS]
+            out.append(
+                f"| {SHORT_SET[s]} | "
+                + " | ".join(cells)
+                + f" | {fmt_metric(paper_figure(metric, s, 'Ours-detailed'), metric)} |"
+            )
+        out.append("")
+    if not grasps:
+        out.append("_Table IV: no grasp results in this store._")
+        return "\n".join(out)
+    out += [
+        "**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
+        "errors (mean), share lifted; paper: joint ° / pose mm",
+        "",
+        "| method | joint ° | pose mm | lift | paper |",
+        "|---|---:|---:|:---:|---:|",
+    ]
+    for s in VIEW_SETS:
+        rows = []
+        for m in GRASP_TABLE_METHODS:
+            c = grasps.get(s, {}).get(m)
+            if not c:
+                continue
+            joint, pose = paper_grasp("joint_error_deg", s, m), paper_grasp("pose_error_mm", s, m)
+            paper = "–" if math.isnan(joint) else f"{fmt(joint, 1)} / {fmt(pose, 0)}"
+            rows.append(
+                f"| {SHORT[m]} | {fmt(c['joint_error_deg'], 1)} | {fmt(c['pose_error_mm'], 1)} | "
+                f"{fmt_share(c['lift_success'], 0)} | {paper} |"
+            )
+        if rows:
+            out += [f"| _{SET_TITLES[s]}_ | | | | |", *rows]
+    return "\n".join(out)

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import viser
 
-from ...evaluation.records import KINDS
+from ...evaluation.methods import Method
+from ...evaluation.records import KINDS, Metric
 from ...evaluation.results import ResultsStore
 from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
-from ...evaluation.tables import panel_markdown
 from ..audience import Audience
 from ..gui import set_value
 from ..jobs import send_download
@@ -28,6 +28,7 @@ from .summary import (
     column_label,
     index_markdown,
     object_label,
+    panel_markdown,
     status_markdown,
     view_label,
     view_markdown,
@@ -321,12 +322,13 @@ class DatasetTab:
             self.c.progress.visible = False
             self.c.status.content = f"**Building the sample store failed:** {message}"
 
-    def _show_bars(self, png: bytes | None, method: str, metric: str) -> None:
+    def _show_bars(self, png: bytes | None, method: Method, metric: Metric) -> None:
         self.c.show_bars(self.audience.gui, png, bars_caption(method, metric))
 
     def _sync_selectors(self) -> None:
         """Fill the object and view dropdowns from the index and the shown view (no callbacks act)."""
-        method, metric = self.c.method.value, self.c.metric.value
+        f = self.c.filters()
+        method, metric = f["method"], f["metric"]
         objects = self.objects[:MAX_OBJECT_OPTIONS]
         shown = self.shown
         if shown is not None and all(o.name != shown.info.object for o in objects):
@@ -377,9 +379,8 @@ class DatasetTab:
         self._activate(layout)
         self.audience.flush()
         self.shown.seconds = time.perf_counter() - t0
-        self.c.index.content = index_markdown(
-            self.objects, self.c.method.value, self.c.metric.value, name, self.total_objects
-        )
+        f = self.c.filters()
+        self.c.index.content = index_markdown(self.objects, f["method"], f["metric"], name, self.total_objects)
 
     def _activate(self, layout: ViewLayout | None) -> None:
         """Show the dataset root (hiding the pipeline) and point every browser camera at ``layout``'s row."""

@@ -8,22 +8,32 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import viser
 
+from ...errors import Cancelled
+from ...evaluation.methods import Method
+from ...evaluation.records import Metric
 from ...evaluation.sample_store import build_sample_store
 from ...evaluation.summaries import ObjectSummary
 from .summary import bars_png, worst_first
 
-if TYPE_CHECKING:
-    from .tab import DatasetTab
-
 log = logging.getLogger(__name__)
 
 POLL_SECONDS = 5.0  # how often the tab looks for new view files
+
+
+class BuildListener(Protocol):
+    """What the sample build tells a Dataset tab (:class:`~.tab.DatasetTab` is one)."""
+
+    def build_progress(self, percent: float, text: str | None) -> None: ...
+
+    def build_failed(self, message: str) -> None: ...
+
+    def refresh(self) -> None: ...
 
 
 class BarsWorker:
@@ -37,16 +47,16 @@ class BarsWorker:
         closed: set when the tab shuts down.
     """
 
-    def __init__(self, show: Callable[[bytes | None, str, str], None], closed: threading.Event) -> None:
+    def __init__(self, show: Callable[[bytes | None, Method, Metric], None], closed: threading.Event) -> None:
         self.key: tuple | None = None  # the latest requested chart
         self.drawn: tuple | None = None  # the key of the chart on screen
         self._show = show
         self._closed = closed
-        self._request: tuple[tuple, list[ObjectSummary], str, str] | None = None  # (key, objects, method, metric)
+        self._request: tuple[tuple, list[ObjectSummary], Method, Metric] | None = None  # (key, objects, method, metric)
         self._wanted = threading.Event()
         self.thread = threading.Thread(target=self._run, name="dataset-bars", daemon=True)
 
-    def request(self, objects: list[ObjectSummary], method: str, metric: str) -> None:
+    def request(self, objects: list[ObjectSummary], method: Method, metric: Metric) -> None:
         """Ask for the chart of ``method``'s ``metric`` over ``objects`` (nothing when it is the latest)."""
         key = (method, metric, tuple((o.name, o.views) for o in objects))
         if key != self.key:
@@ -91,8 +101,8 @@ def poll_thread(refresh: Callable[[], None], closed: threading.Event) -> threadi
     return threading.Thread(target=run, name="dataset-poll", daemon=True)
 
 
-class _Stopped(Exception):
-    """Raised in the sample build's progress callback when the viewer stops."""
+# Raised in the sample build's progress callback when the viewer stops.
+_Stopped = Cancelled
 
 
 class SampleBuild:
@@ -105,7 +115,7 @@ class SampleBuild:
         tabs: the open sessions' Dataset tabs (asked at each step: sessions come and go).
     """
 
-    def __init__(self, server: viser.ViserServer, tabs: Callable[[], list[DatasetTab]]) -> None:
+    def __init__(self, server: viser.ViserServer, tabs: Callable[[], Sequence[BuildListener]]) -> None:
         self.server = server
         self.tabs = tabs
         self.running = False

@@ -1,6 +1,6 @@
-"""Grasps in the viewer (paper Fig. 5, step 6; SPEC section 8): plan on a segment's mesh, draw the
+"""Grasps in the viewer (paper Fig. 5, step 6; Tables IV and V): plan on a segment's mesh, draw the
 hands, execute them on the true object of a synthetic scene, rank them by how many of the
-completion's sample completions they hold on (issue 14), export them.
+completion's sample completions they hold on (their robustness), export them.
 
 Frames: everything here is in the viewer's WORLD frame (metres, z up, table top z = 0). A segment's
 mesh (camera frame on its :class:`~shapeviewer.completion.pipeline.Completion`) is mapped with

@@ -16,16 +16,9 @@ import viser
 
 from ...grasp.execute import ExecutionResult, execute_grasps
 from ...grasp.hands import HAND_NAMES
-from ...grasp.plan import Grasp, plan
-from ...grasp.robust import (
-    ROBUST_QUANTILE,
-    WIDEN_BELOW,
-    Robustness,
-    RobustnessCancelled,
-    is_weak,
-    rank_robust,
-    robustness,
-)
+from ...grasp.pick import PickCancelled, rank_grasps
+from ...grasp.plan import plan
+from ...grasp.robust import ROBUST_QUANTILE, WIDEN_BELOW, Robustness
 from ...grasp.serialize import grasps_to_json, scene_zip
 from ...runtime.processes import ProcessPool
 from ..audience import Audience
@@ -309,6 +302,11 @@ class GraspController:
     def _rank_job(
         self, job: GraspJob, scene: LoadedScene, s: SegmentGrasps, client: viser.ClientHandle | None
     ) -> list[Robustness] | None:
+        """The app's pick on segment ``s``'s grasps (:func:`~shapeviewer.grasp.pick.rank_grasps`, its
+        heavy stages in the worker processes): scored over the sample completions, and when no grasp
+        holds up, the wider search on the grasp envelope (re-scoring the envelope's grasps of an
+        earlier ranking rather than planning them again). Returns the scores in grasp order, None
+        when cancelled."""
         sid = s.segment_id
         self.host.set_status(f"_Grasps: meshing the sample completions of segment {sid}..._")
         samples = self.host.samples(sid)
@@ -318,31 +316,51 @@ class GraspController:
         self.host.set_status(
             f"_Re-closing {first} grasps on {len(samples)} sample completions, then lifting the best..._"
         )
+
+        def envelope() -> trimesh.Trimesh:
+            """The grasp envelope in the world frame, made through the app when missing (the wider search needs it)."""
+            self.host.set_status(
+                f"_No grasp lifted {self.widen_below:.0%} of its sample tests: "
+                + (
+                    f"planning {first} more on the grasp envelope of segment {sid}..._"
+                    if s.wider_from is None
+                    else f"re-closing the grasps of the grasp envelope of segment {sid} on the sample completions..._"
+                )
+            )
+            mesh = self._mesh(sid, "envelope", client).copy()
+            mesh.apply_transform(scene.T_world_cam)
+            return mesh
+
         try:
-            scores = self.jobs.compute(job, robustness, s.grasps[:first], samples, s.mesh_world, table=s.table)
-            more = s.grasps[first:]
-            weak = is_weak(scores, [g.lift for g in s.grasps[:first]], below=self.widen_below)
-            if more or (s.method != "envelope" and weak):
-                try:
-                    wider = self._wider_search(job, scene, s, first, samples, more, client)
-                except RobustnessCancelled:
-                    raise
-                except Exception as e:  # the first grasps' ranking stands
-                    log.warning("segment %d: the wider search failed", sid, exc_info=True)
-                    self.host.notify(
-                        client,
-                        "Wider search failed",
-                        f"Segment {sid}: {e}. The {s.method} mesh's grasps are ranked alone.",
-                        "yellow",
-                    )
-                    wider = ([], [])
-                if wider is None:
-                    return None
-                more = wider[0]
-                scores += wider[1]
-        except RobustnessCancelled:
+            pick = rank_grasps(
+                s.mesh_world,
+                samples,
+                hand=s.hand,
+                n_grasps=first,
+                seed=s.seed,
+                table=s.table,
+                planned=s.grasps[:first],
+                wider=s.grasps[first:] or None,
+                widen=s.method != "envelope",
+                widen_below=self.widen_below,
+                envelope=envelope,
+                runner=self.jobs.runner(job),
+                progress=self.jobs.progress,
+                cancel=job.cancel_event.is_set,
+            )
+        except PickCancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None
+        if pick.wider_error is not None:
+            self.host.notify(
+                client,
+                "Wider search failed",
+                f"Segment {sid}: {pick.wider_error}. The {s.method} mesh's grasps are ranked alone.",
+                "yellow",
+            )
+        more = list(pick.grasps[first:])
+        scores = list(pick.robustness)
+        order = list(pick.order)
         with self._state:
             if self.host.scene() is not scene or self.sets.get(sid) is not s:  # re-planned or a new scene
                 return scores
@@ -353,7 +371,6 @@ class GraspController:
                 s.wider_from = first if more else None
                 self.drawing.draw_segment(s)
             s.robustness = scores
-            order = rank_robust(scores, [g.lift for g in s.grasps])
             self.current, self.selected = sid, order[0]  # the user asked for the most robust one
             self._refresh_panel()
         best = scores[order[0]]
@@ -377,35 +394,6 @@ class GraspController:
             "green",
         )
         return scores
-
-    def _wider_search(
-        self,
-        job: GraspJob,
-        scene: LoadedScene,
-        s: SegmentGrasps,
-        first: int,
-        samples: list[trimesh.Trimesh],
-        more: list[Grasp],
-        client: viser.ClientHandle | None,
-    ) -> tuple[list[Grasp], list[Robustness]] | None:
-        """The ranking's wider search on segment ``s``: its grasps planned on the grasp envelope
-        (``more``, or as many as its first ``first`` when none were planned yet) and their scores over
-        ``samples`` against the envelope; None when planning was cancelled."""
-        sid = s.segment_id
-        envelope = self._mesh(sid, "envelope", client).copy()
-        envelope.apply_transform(scene.T_world_cam)
-        if not more:
-            self.host.set_status(
-                f"_No grasp lifted {self.widen_below:.0%} of its sample tests: planning {first} more on the grasp "
-                f"envelope of segment {sid}..._"
-            )
-            result = self.jobs.compute(job, plan, envelope, hand=s.hand, n_grasps=first, seed=s.seed, table=s.table)
-            if result.stats.cancelled or job.cancel_event.is_set():
-                self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
-                return None
-            more = result.grasps
-        self.host.set_status(f"_Re-closing the {len(more)} grasps of the envelope on the sample completions..._")
-        return more, self.jobs.compute(job, robustness, more, samples, envelope, table=s.table)
 
     # ------------------------------------------------------------------------------------------
     # Selection, export, scene changes

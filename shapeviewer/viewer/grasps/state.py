@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from ...errors import ShapeviewerError
 from ...grasp.execute import ExecutionResult
 from ...grasp.plan import Grasp, PlanStats
 from ...grasp.robust import Robustness
@@ -90,7 +91,7 @@ class GraspJob:
         self.cancel_event.set()
 
 
-class GraspJobError(Exception):
+class GraspJobError(ShapeviewerError):
     """A job that cannot go on; the message is for the user."""
 
 

@@ -15,6 +15,8 @@ from typing import Any, TypeVar
 import numpy as np
 import viser
 
+from ...grasp.pick import Runner
+from ...grasp.search import ProgressFn
 from ...runtime.processes import JobCancelled, ProcessPool
 from ..gui import set_value
 from ..jobs import READY, Notify
@@ -108,6 +110,19 @@ class GraspJobs:
         if self.pool.full:
             self.set_status("_Grasps: waiting for a free worker (others are planning)..._")
         return self.pool.run(fn, *args, progress=self.progress, cancel=job.cancel_event, **kwargs)
+
+    def runner(self, job: GraspJob) -> Runner:
+        """A :data:`~shapeviewer.grasp.pick.Runner` for the pick's stages in ``job``: each computed in a
+        worker process as :meth:`compute` computes, with the pick's own progress (its share of the
+        whole pick) on the bar."""
+
+        def run(fn: Callable[..., T], *args: Any, progress: ProgressFn | None = None, **kwargs: Any) -> T:
+            kwargs.pop("cancel", None)  # the worker's cancel() answers job's Cancel
+            if self.pool.full:
+                self.set_status("_Grasps: waiting for a free worker (others are planning)..._")
+            return self.pool.run(fn, *args, progress=progress, cancel=job.cancel_event, **kwargs)
+
+        return run
 
     def running(self) -> bool:
         """Whether a job runs now."""
