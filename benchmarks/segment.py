@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/segment.py [--runs 5] [--data DIR]``. Prints, per capture, the median
 over the runs of every stage of :func:`shapeviewer.perception.segment.segment_scene` and what it found.
-The captures are PCL's public test clouds in ``../shared/data/real`` (never copied into the repo).
+The captures are PCL's public test clouds shipped in ``static_assets/captures`` (``--data`` for others).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from shapeviewer.perception.capture import load_capture
 from shapeviewer.perception.segment import segment_scene
 
 PAPER_SECONDS = 0.119
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+DEFAULT_DATA = Path(__file__).resolve().parents[1] / "static_assets" / "captures"
 
 
 def main() -> None:

@@ -33,6 +33,7 @@ _API: dict[str, str | tuple[str, str]] = {
     "execute_grasps": (".grasp.execute", "execute_grasps"),
     "robust_grasps": (".grasp.pick", "robust_grasps"),
     "evaluate": (".evaluation.run", "evaluate"),
+    "clear_table": (".clutter.run", "clear_table"),
     "ViewerApp": ".viewer.app",
 }
 __all__ = sorted(_API)

@@ -4,6 +4,7 @@ from pathlib import Path
 import pytest
 
 REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+CLUTTER_OBJECTS = Path(__file__).resolve().parents[2] / "shared" / "data" / "clutter"
 
 
 @pytest.fixture(scope="session")
@@ -12,6 +13,16 @@ def real_data() -> Path:
     if not REAL_DATA.is_dir():
         pytest.skip(f"real captures not found at {REAL_DATA}")
     return REAL_DATA
+
+
+@pytest.fixture(scope="session")
+def clutter_objects() -> list[Path]:
+    """The folders of scanned household objects as URDFs in ../shared/data/clutter (never copied into
+    the repo): every folder below it that holds ``*.urdf`` files, sorted."""
+    folders = sorted({p.parent for p in CLUTTER_OBJECTS.glob("*/*/*.urdf")}) if CLUTTER_OBJECTS.is_dir() else []
+    if not folders:
+        pytest.skip(f"URDF object folders not found at {CLUTTER_OBJECTS}")
+    return folders
 
 
 @pytest.fixture(scope="session", autouse=True)

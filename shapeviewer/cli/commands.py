@@ -51,7 +51,7 @@ class CLIError(ShapeviewerError, ValueError):
 
 
 # Commands whose option names a folder they create: removed again if the command fails and leaves it empty.
-OUT_FOLDERS = {"complete": "out", "generate": "out", "evaluate": "out", "train": "run"}
+OUT_FOLDERS = {"complete": "out", "generate": "out", "evaluate": "out", "train": "run", "clutter": "out"}
 
 
 def _new_folders(path: Path, option: str) -> list[Path]:
@@ -268,28 +268,45 @@ def cmd_objects(args) -> int:
     from ..sim import catalogue
 
     if args.write_index:
-        catalogue.catalogue.cache_clear()
+        catalogue.clear_caches()
         for p in (catalogue.cache_dir() / f"catalogue_v{catalogue.CATALOGUE_VERSION}.json", catalogue.SHIPPED_INDEX):
             p.unlink(missing_ok=True)  # rebuild from the meshes themselves
-        catalogue.write_index(catalogue.catalogue(), Path(args.write_index))
+        # The shipped index holds the package's own objects only, never a user's folders.
+        catalogue.write_index(catalogue.catalogue(objects_dirs=()), Path(args.write_index))
         print(f"catalogue index -> {args.write_index}")
-    rows = catalogue.catalogue()
+    with catalogue.objects_from(args.objects_dir) as folders:
+        rows = catalogue.catalogue()
+        skipped = {folder: catalogue.urdf_skipped(folder) for folder in folders}
     if args.json:
         print(
             json.dumps(
                 [
-                    {"name": e.name, "split": e.split, "source": e.source, "size_m": [round(x, 4) for x in e.extents]}
+                    {
+                        "name": e.name,
+                        "split": e.split,
+                        "source": e.source,
+                        "kind": catalogue.shape_kind(e.name),
+                        "size_m": [round(x, 4) for x in e.extents],
+                    }
                     for e in rows
                 ],
                 indent=1,
             )
         )
         return 0
-    print(f"{'name':34s} {'split':14s} {'source':9s} size (cm)")
+    width = max([34, *(len(e.name) for e in rows)])
+    print(f"{'name':{width}s} {'split':14s} {'source':9s} {'kind':13s} size (cm)")
     for e in rows:
-        print(f"{e.name:34s} {e.split:14s} {e.source:9s} {' x '.join(f'{x * 100:.1f}' for x in e.extents)}")
+        size = " x ".join(f"{x * 100:.1f}" for x in e.extents)
+        print(f"{e.name:{width}s} {e.split:14s} {e.source:9s} {catalogue.shape_kind(e.name):13s} {size}")
     counts = {s: sum(e.split == s for e in rows) for s in ("train", "holdout_model")}
     print(f"{len(rows)} objects: {counts['train']} train, {counts['holdout_model']} holdout models")
+    for folder, missed in skipped.items():
+        listed = [e for e in rows if e.source == "urdf" and Path(e.path).is_relative_to(folder)]
+        held = sum(e.split == "holdout_model" for e in listed)
+        print(f"{folder}: {len(listed)} objects ({len(listed) - held} train, {held} holdout), {len(missed)} skipped")
+        for what, why in missed:
+            print(f"  skipped {what}: {why}")
     return 0
 
 
@@ -309,6 +326,7 @@ def cmd_generate(args) -> int:
         objects=args.objects,
         workers=args.workers,
         backend=args.backend,
+        objects_dirs=args.objects_dir,
     )
     print(json.dumps({k: v for k, v in r.items() if k != "errors"}, indent=1))
     for e in r["errors"]:
@@ -404,19 +422,45 @@ def cmd_evaluate(args) -> int:
             robust=args.robust,
             widen_below=args.widen_below,
         )
-    r = evaluate(
-        args.out,
-        n_per_set=args.views_per_set,
-        seed=args.seed,
-        weights=args.weights,
-        workers=args.workers,
-        backend=args.backend,
-        progress=not args.no_progress,
-        grasps=grasps,
-        views=args.views,
-    )
+    from ..sim.catalogue import objects_from
+
+    with objects_from(args.objects_dir):  # the test views are drawn from these objects too
+        r = evaluate(
+            args.out,
+            n_per_set=args.views_per_set,
+            seed=args.seed,
+            weights=args.weights,
+            workers=args.workers,
+            backend=args.backend,
+            progress=not args.no_progress,
+            grasps=grasps,
+            views=args.views,
+        )
     print(r["tables_md"])
     print(f"{r['computed']} views computed, {r['skipped']} already done, {r['seconds']:.1f} s -> {args.out}")
+    return 0
+
+
+def cmd_clutter(args) -> int:
+    from ..clutter.run import clear_table
+
+    summary = clear_table(
+        args.out,
+        scene=args.scene,
+        objects=args.objects,
+        setup=args.setup,
+        rounds=args.rounds,
+        seeds=args.seeds,
+        methods=args.methods,
+        count=args.objects_per_round,
+        attempt_seconds=args.attempt_seconds,
+        report=lambda line: print(line, flush=True),
+    )
+    for name, m in summary["methods"].items():
+        print(
+            f"{name}: GSR {m['gsr']:.1f} +- {m['gsr_std']:.1f} %, DR {m['dr']:.1f} +- {m['dr_std']:.1f} % "
+            f"({m['successes']}/{m['attempts']} attempts, {m['objects']} objects) -> {args.out}/summary.json"
+        )
     return 0
 
 
@@ -430,6 +474,7 @@ COMMANDS = {
     "average": cmd_average,
     "evaluate-grids": cmd_evaluate_grids,
     "evaluate": cmd_evaluate,
+    "clutter": cmd_clutter,
 }
 
 

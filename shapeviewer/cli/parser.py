@@ -3,15 +3,16 @@
 shapeviewer serve [--port 8080] [--cloud PATH] [--seed N] [--weights PATH] [--results DIR] [--data-dir DIR]
 shapeviewer complete INPUT --segment K|all --mode fast|detailed --out DIR
 shapeviewer grasp MESH --hand barrett|panda --out grasps.json|scene.zip
-shapeviewer objects
-shapeviewer generate --out DIR [--views N] [--backend process|ray]
+shapeviewer objects [--objects-dir DIR ...]
+shapeviewer generate --out DIR [--views N] [--backend process|ray] [--objects-dir DIR ...]
 shapeviewer train --data DIR --run DIR [--steps N]
 shapeviewer average A.pt B.pt --out C.pt
 shapeviewer evaluate-grids --data DIR [--weights PATH] [--by-kind] [--kinds mug bowl ...] [--samples 1]
 shapeviewer evaluate --out DIR [--views paper|tabletop] [--views-per-set 50] [--seed 0] [--weights PATH]
-                     [--workers N] [--backend process|ray]
+                     [--workers N] [--backend process|ray] [--objects-dir DIR ...]
                      [--grasps [--hand barrett|panda] [--n-grasps 20] [--grasp-budget S] [--grasp-methods M ...]
                                [--robust]]
+shapeviewer clutter --scene pile|packed --objects DIR [--setup DIR] --rounds N --seeds S ... --methods M ... --out DIR
 """
 
 from __future__ import annotations
@@ -58,6 +59,17 @@ def _add_input_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="CNN weights (.pt); default: the shipped model")
     for k in ("fx", "fy", "cx", "cy"):
         p.add_argument(f"--{k}", type=PIXELS, default=None, help=f"depth-image intrinsics {k} (pixels)")
+
+
+def _add_objects_dir(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--objects-dir",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="also use the objects of this folder of URDF files (NAME.urdf beside its visual mesh, metres; "
+        "named urdf/<set>/<NAME>); repeatable. Default: the folders in SHAPEVIEWER_OBJECTS, if any",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,6 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PATH",
         help="process every mesh again and write the index (static_assets/catalogue.json ships one)",
     )
+    _add_objects_dir(s)
 
     s = sub.add_parser("generate", help="render training pairs (X, Y) for the catalogue objects")
     s.add_argument("--out", required=True)
@@ -158,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--objects",
         nargs="*",
         default=None,
-        help="catalogue names, or generated ones it does not list (assembly/parts_000 ...); default: the catalogue",
+        help="catalogue names (urdf/<set>/<NAME> of an --objects-dir folder), or generated ones it does not list "
+        "(assembly/parts_000 ...); default: the catalogue",
     )
     s.add_argument("--no-noise", action="store_true", help="ideal depth instead of the Kinect sensor model")
     s.add_argument(
@@ -180,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--workers", type=COUNT, default=None)
     s.add_argument("--backend", default="process", choices=BACKENDS)
     s.add_argument("--seed", type=SEED, default=0)
+    _add_objects_dir(s)
 
     s = sub.add_parser("train", help="train (or resume) a completion CNN")
     s.add_argument("--data", required=True, nargs="+", help="one or more `generate` folders, pooled")
@@ -272,6 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="process: local processes; ray: a Ray cluster (RAY_ADDRESS, else a local instance)",
     )
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_objects_dir(s)
     s.add_argument(
         "--grasps",
         action="store_true",
@@ -310,4 +326,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="meshes to grasp, of Partial Mirror Hull Ours-fast Ours-detailed and Ours-envelope (the grasp "
         "envelope of the CNN's sample completions; default: all six)",
     )
+
+    s = sub.add_parser("clutter", help="VGN/GIGA's simulated clutter removal with a Panda hand -> results folder")
+    s.add_argument("--scene", required=True, choices=["pile", "packed"])
+    s.add_argument("--objects", required=True, metavar="DIR", help="object set: a folder of NAME.urdf files")
+    s.add_argument("--setup", default=None, metavar="DIR", help="folder with plane.urdf / box.urdf (default: built in)")
+    s.add_argument("--rounds", type=COUNT, default=10, help="rounds per seed and method")
+    s.add_argument("--seeds", type=SEED, nargs="+", default=[0])
+    s.add_argument("--methods", nargs="+", default=["Highest"], metavar="METHOD", help="methods to run (Highest)")
+    s.add_argument("--objects-per-round", type=COUNT, default=5)
+    s.add_argument("--attempt-seconds", type=SECONDS, default=120.0, help="a method's time per grasp attempt")
+    s.add_argument("--out", required=True, help="results folder (resumable: finished rounds are skipped)")
     return p

@@ -24,11 +24,16 @@ over the CNN's sample completions).
 Outputs in ``out_dir`` (layout: :mod:`.records`): one record per view in ``views/`` (the run
 resumes by skipping finished work: a view's completions, then each grasp method), its meshes and
 grasp files, ``rows.csv`` (completion rows), ``grasp_rows.csv`` (one row per executed grasp) and
-``tables.md`` / ``tables.csv`` (:mod:`.tables`).
+``tables.md`` / ``tables.csv`` (:mod:`.tables`), and ``settings.json``: the settings that shaped its
+entries (:func:`run_settings`). A run resumes a folder only under the same settings; otherwise it is
+refused before any work (:class:`SettingsMismatch`), so a folder never mixes entries of two settings.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import logging
 import math
 import multiprocessing as mp
@@ -39,8 +44,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ShapeviewerError
 from ..fileio import atomic_write
 from ..runtime.backends import BACKENDS, ray_init
+from ..runtime.processes import die_with_parent
 from ..sim import catalogue
 
 # The grasp stage: what callers of this module have always imported from it.
@@ -211,9 +218,14 @@ def grasp_and_save(out_dir, record: dict, method: str, options: GraspOptions) ->
 _WORKER: dict = {}
 
 
-def _init_worker(weights, threads: int) -> None:
+def _init_worker(weights, threads: int, parent: int | None = None) -> None:
+    """A worker process's start (``parent``: the run's process id, None in the run's own process):
+    it dies with the run, even one killed with SIGKILL, rather than go on writing into the
+    results folder (:func:`~shapeviewer.runtime.processes.die_with_parent`)."""
     import torch
 
+    if parent is not None:
+        die_with_parent(parent)
     torch.set_num_threads(threads)
     _WORKER.clear()
     _WORKER.update(weights=weights, threads=threads)
@@ -307,7 +319,9 @@ def run_views(
             finally:
                 _WORKER.clear()
         else:
-            with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(weights, threads)) as pool:
+            # Made by this thread, which outlives the pool: the workers' parent-death signal holds for the run.
+            initargs = (weights, threads, os.getpid())
+            with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=initargs) as pool:
                 for _ in pool.imap_unordered(_run_one, todo):
                     bar.update()
         return len(todo)
@@ -335,6 +349,117 @@ def write_tables(out_dir, views: list[tuple[str, int, str]], seed: int, n_per_se
     return {"rows": rows, "summary": summary, "grasp_rows": g_rows, "grasp_summary": g_summary, "tables_md": md}
 
 
+# ----------------------------------------------------------------------------------------------
+# The settings of a results folder
+
+SETTINGS_FILE = "settings.json"
+# Each recorded setting: its name on the command line, for messages.
+_OPTION_NAMES = {
+    "weights": "--weights",
+    "seed": "--seed",
+    "views": "--views",
+    "n_grasps": "--n-grasps",
+    "budget_seconds": "--grasp-budget",
+    "plan_settings": "the grasp planner's search sizes (GraspOptions.settings)",
+    "widen_below": "--widen-below",
+}
+
+
+class SettingsMismatch(ShapeviewerError, ValueError):
+    """A results folder made under other settings than the run's: resuming would mix entries of both."""
+
+
+def weights_identity(weights) -> str:
+    """What names a CNN in a folder's settings: the SHA-256 of its weights file (so that a file
+    moved or copied is the same CNN), or ``untrained`` when the shipped weights are absent."""
+    from ..completion.model import DEFAULT_WEIGHTS
+
+    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        if weights is None:
+            return "untrained"
+        raise FileNotFoundError(f"weights file not found: {path}")
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return f"{path.name} sha256:{digest.hexdigest()[:16]}"
+
+
+def run_settings(*, seed: int, weights, views: Views, grasps: GraspOptions | None) -> dict:
+    """The settings that shape a run's entries, as ``settings.json`` records them.
+
+    ``completion``: the CNN (:func:`weights_identity`), the seed and the view kind (a view's record
+    is found by object and view only). ``grasps`` (a grasp run only): grasps planned per view, the
+    planning time limit and the planner's search sizes. ``robust`` (a robust run only): the share
+    below which the robust ranking widens its search. The hand and the methods are not among them:
+    entries are kept per method and hand, so another of either adds entries.
+    """
+    settings: dict = {"completion": {"weights": weights_identity(weights), "seed": int(seed), "views": views}}
+    if grasps is not None:
+        from ..grasp.plan import PlanSettings
+        from ..grasp.robust import WIDEN_BELOW
+
+        settings["grasps"] = {
+            "n_grasps": int(grasps.n_grasps),
+            "budget_seconds": grasps.budget_seconds,
+            "plan_settings": dataclasses.asdict(grasps.settings or PlanSettings()),
+        }
+        if grasps.robust:
+            below = WIDEN_BELOW if grasps.widen_below is None else grasps.widen_below
+            settings["robust"] = {"widen_below": float(below)}
+    return settings
+
+
+def _shown(key: str, value) -> str:
+    if value is None:
+        return "none" if key == "budget_seconds" else "the default"
+    if isinstance(value, dict):
+        return " ".join(f"{k}={v}" for k, v in value.items())
+    return str(value)
+
+
+def check_settings(out_dir: str | Path, settings: dict) -> dict:
+    """``settings`` merged into what the results folder recorded, to be saved once the run starts
+    (:func:`save_settings`).
+
+    A folder without a record (new, or made before records were kept) takes the run's. A part
+    the folder lacks (its first grasp or robust run) is added.
+
+    Raises:
+        SettingsMismatch: a setting differs from the folder's; the message names the option, both
+            values, and how to resume or start afresh.
+    """
+    path = Path(out_dir) / SETTINGS_FILE
+    try:
+        recorded = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError) as e:
+        raise SettingsMismatch(
+            f"{path}: unreadable ({e}); remove it only if the folder's results are all of this run's settings"
+        ) from None
+    merged = {**recorded}
+    for part, values in settings.items():
+        old = recorded.get(part)
+        if not isinstance(old, dict):
+            merged[part] = values
+            continue
+        for key, value in values.items():
+            if key in old and old[key] != value:
+                option = _OPTION_NAMES.get(key, key)
+                raise SettingsMismatch(
+                    f"{out_dir}: its results were made with {option} {_shown(key, old[key])}, and this run asks for "
+                    f"{_shown(key, value)}: resuming would mix the two. Run again with {option} "
+                    f"{_shown(key, old[key])} to resume it, or give a new --out folder"
+                )
+        merged[part] = {**old, **values}
+    return merged
+
+
+def save_settings(out_dir: str | Path, settings: dict) -> None:
+    """Write a folder's ``settings.json`` (see :func:`check_settings`)."""
+    atomic_write(Path(out_dir) / SETTINGS_FILE, json.dumps(settings, indent=1))
+
+
 def evaluate(
     out_dir: str | Path,
     *,
@@ -355,16 +480,27 @@ def evaluate(
     are read from ``meshes/``, never recomputed. ``backend`` and ``workers``: see :func:`run_views`.
     Returns ``{"computed", "skipped", "rows", "summary", "grasp_rows", "grasp_summary",
     "tables_md", "seconds"}`` (:func:`write_tables`); ``computed`` counts views with any work done.
+
+    Raises:
+        SettingsMismatch: ``out_dir`` holds results made under other settings (:func:`check_settings`).
     """
     options = GraspOptions() if grasps is True else (grasps or None)
     out = Path(out_dir)
+    settings = check_settings(out, run_settings(seed=seed, weights=weights, views=views, grasps=options))
     out.mkdir(parents=True, exist_ok=True)
+    first = not (out / SETTINGS_FILE).exists()
+    save_settings(out, settings)  # before any entry: a run killed midway leaves its entries' settings
     t0 = time.perf_counter()
     sample = sample_views(n_per_set, seed, views)
     upgrade_old_views(out, sample, seed)
-    computed = run_views(
-        out, sample, seed=seed, weights=weights, workers=workers, backend=backend, grasps=options, progress=progress
-    )
+    try:
+        computed = run_views(
+            out, sample, seed=seed, weights=weights, workers=workers, backend=backend, grasps=options, progress=progress
+        )
+    except BaseException:
+        if first and not any((out / "views").glob("*.json")):  # nothing made: the folder stays as it was
+            (out / SETTINGS_FILE).unlink(missing_ok=True)
+        raise
     return {
         "computed": computed,
         "skipped": len(sample) - computed,

@@ -11,6 +11,11 @@
   sets: *tabletop, training objects* (views numbered from ``TABLETOP_VIEW_OFFSET``, which training
   data never uses) and *tabletop, holdout models*. Objects are drawn kind by kind
   (:func:`catalogue.shape_kind`), so every family of shapes is represented.
+
+The objects are the catalogue's in use: with folders of URDF objects (``--objects-dir``,
+``SHAPEVIEWER_OBJECTS``, :func:`catalogue.objects_from`) their ``urdf/<set>/<NAME>`` objects are drawn too,
+split by :func:`catalogue.model_split` like the others (a *training view* of an object is one the network
+trained on only when its training data held that object).
 """
 
 from __future__ import annotations

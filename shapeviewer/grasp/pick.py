@@ -32,13 +32,13 @@ from typing import Any, Literal
 import numpy as np
 import trimesh
 
+from shapeviewer.errors import Cancelled
 from shapeviewer.grasp.plan import PlanResult, PlanStats, plan
 from shapeviewer.grasp.robust import (
     LIFT_TOP,
     RECHECK_TOP,
     WIDEN_BELOW,
     Robustness,
-    RobustnessCancelled,
     is_weak,
     rank_robust,
     robustness,
@@ -55,10 +55,6 @@ CompletionMode = Literal["fast", "detailed"]
 Runner = Callable[..., Any]
 # The grasp envelope (world frame), or a function that makes it when the wider search needs it.
 EnvelopeSource = trimesh.Trimesh | Callable[[], trimesh.Trimesh]
-
-
-class PickCancelled(RobustnessCancelled):
-    """:func:`rank_grasps` stopped because its ``cancel`` returned True."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,10 +178,10 @@ def rank_grasps(
             progress=..., cancel=..., **kwargs)``; None calls them here. The viewer's computes
             them in its worker processes.
         progress: told the share of the work done, 0..1.
-        cancel: asked between and during the stages; True stops with :class:`PickCancelled`.
+        cancel: asked between and during the stages; True stops with :class:`~shapeviewer.errors.Cancelled`.
 
     Raises:
-        PickCancelled: ``cancel`` returned True.
+        Cancelled: ``cancel`` returned True.
         ValueError: the search may widen but there is no ``envelope``; ``planned`` grasps of
             another hand.
         DecompositionError: planning on (or scoring against) ``mesh_world`` failed. A failing
@@ -212,7 +208,7 @@ def rank_grasps(
 
     def check() -> None:
         if stopped():
-            raise PickCancelled
+            raise Cancelled
 
     def plan_on(mesh: trimesh.Trimesh, step: str) -> PlanResult:
         result = run(
@@ -228,7 +224,7 @@ def rank_grasps(
             cancel=cancel,
         )
         if result.stats.cancelled:
-            raise PickCancelled
+            raise Cancelled
         check()
         return result
 
@@ -249,8 +245,8 @@ def rank_grasps(
                 progress=stage(step),
                 cancel=cancel,
             )
-        except RobustnessCancelled as e:
-            raise PickCancelled from e
+        except Cancelled:
+            raise
 
     seconds = {"plan": 0.0, "rank": 0.0, "wider": 0.0}
     check()
@@ -280,7 +276,7 @@ def rank_grasps(
             else:
                 more = list(wider)
             more_scores = score(more, envelope_world, "wider")
-        except PickCancelled:
+        except Cancelled:  # a cancelled pick stops; only a failed wider search lets the first grasps stand
             raise
         except Exception as e:  # the completion's own grasps stand
             log.info("the wider search failed; the completion's grasps are ranked alone", exc_info=True)
@@ -338,7 +334,7 @@ def robust_grasps(
         completer: the network (default: the shipped model, loaded once and kept).
         widen: allow the wider search on the grasp envelope when no grasp holds up on the samples.
         progress: told the share of the grasp work done, 0..1.
-        cancel: asked often; True stops with :class:`PickCancelled`.
+        cancel: asked often; True stops with :class:`~shapeviewer.errors.Cancelled`.
 
     Returns:
         A :class:`Pick` in the world frame: the table top is z = 0 and +z up (metres), its x axis
@@ -349,7 +345,7 @@ def robust_grasps(
     Raises:
         SegmentTooSmallError: too few points or too small an object to place a grid on.
         EmptyCompletionError: the network completed nothing.
-        PickCancelled: ``cancel`` returned True.
+        Cancelled: ``cancel`` returned True.
         ValueError: an unknown ``hand`` or ``mode``, or a malformed ``support_plane``.
     """
     from shapeviewer.completion.pipeline import (

@@ -114,7 +114,6 @@ WIDEN_BELOW = 1.0
 
 
 # :func:`robustness` stopped because its ``cancel`` returned True (the package's one cancellation error).
-RobustnessCancelled = Cancelled
 
 
 @dataclass(frozen=True)
@@ -280,7 +279,7 @@ def _close_on_samples(
     with GraspWorld(hand, table=table) as world:
         for s in samples:
             if cancel is not None and cancel():
-                raise RobustnessCancelled
+                raise Cancelled
             path = parts.obj(s.mesh, Path(folder) / f"sample{s.index}.obj")
             body = world.add_object(s.mesh, parts=path)
             com = centre_of_mass(s.mesh)
@@ -313,7 +312,7 @@ def _lift_on_samples(
     out: dict[int, list[bool]] = {}
     for k, (mesh, parts, states) in work.items():
         if cancel is not None and cancel():
-            raise RobustnessCancelled
+            raise Cancelled
         out[k] = [lift_test(h, mesh, table=table, parts=parts).success for h in states]
         if progress is not None:
             progress(len(out) / len(work))
@@ -366,7 +365,7 @@ def robustness(
     Raises:
         DecompositionError: V-HACD of ``planned_on_world`` failed (it is cached by the planner,
             which needed it too, so it is normally not computed again here).
-        RobustnessCancelled: ``cancel`` returned True.
+        Cancelled: ``cancel`` returned True.
     """
     if not samples_world or processes < 1 or lift_top < 0 or recheck_top < 0:
         raise ValueError(

@@ -30,7 +30,16 @@ import numpy as np
 import trimesh
 
 from .camera import Intrinsics, backproject
-from .readers import CaptureError, check_file, pcd_layout, ply_layout, read_npy_depth, read_png_depth
+from .readers import (
+    CaptureError,
+    check_file,
+    load_npy,
+    npy_header,
+    pcd_layout,
+    ply_layout,
+    read_npy_depth,
+    read_png_depth,
+)
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +122,11 @@ _MAX_FIT_RMS_PX = 0.5
 
 
 def load_capture(
-    path: str | os.PathLike, intrinsics: Intrinsics | None = None, max_points: int | None = MAX_CAPTURE_POINTS
+    path: str | os.PathLike,
+    intrinsics: Intrinsics | None = None,
+    max_points: int | None = MAX_CAPTURE_POINTS,
+    *,
+    name: str | None = None,
 ) -> Capture:
     """Read a point cloud (``.pcd``, ``.ply``, ``.npy`` of points) or a depth image (``.png``, ``.npy``).
 
@@ -126,12 +139,26 @@ def load_capture(
             :func:`load_depth`); organized clouds get them fitted when omitted.
         max_points: keep at most this many points (:func:`decimate`, with a logged warning);
             None keeps all.
+        name: what messages and the capture's ``source`` call the file (default: ``path``), e.g.
+            its name in the server's data folder, so that a browser never sees the server's paths.
 
     Raises:
-        CaptureError: the file is missing, of an unsupported type, unreadable, or larger than
-            :data:`MAX_FILE_POINTS`.
+        CaptureError: the file is missing, not a regular file (a FIFO or device is refused before
+            anything opens it), of an unsupported type, unreadable, or larger than :data:`MAX_FILE_POINTS`.
     """
     path = Path(path)
+    if name is None:
+        return _load_capture(path, intrinsics, max_points)
+    try:
+        capture = _load_capture(path, intrinsics, max_points)
+    except CaptureError as e:
+        raise CaptureError(str(e).replace(str(path), name)) from None
+    capture.source = name
+    return capture
+
+
+def _load_capture(path: Path, intrinsics: Intrinsics | None, max_points: int | None) -> Capture:
+    check_file(path)  # before any open: a FIFO named x.npy must not block the reader
     suffix = path.suffix.lower()
     if suffix in CLOUD_SUFFIXES:
         capture = load_cloud(path, intrinsics)
@@ -200,10 +227,7 @@ def load_npy_points(path: str | os.PathLike, intrinsics: Intrinsics | None = Non
         CaptureError: unreadable, not such an array, larger than :data:`MAX_FILE_POINTS`, or no finite point.
     """
     path = check_file(path)
-    try:
-        raw = np.load(path, mmap_mode="r", allow_pickle=False)
-    except Exception as e:  # ValueError, OSError, EOFError... for broken files
-        raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
+    raw = load_npy(path)
     if raw.ndim not in (2, 3) or raw.shape[-1] != 3 or raw.size == 0:
         raise CaptureError(f"{path}: expected (N, 3) or (H, W, 3) points in metres, got {raw.shape}")
     if not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
@@ -234,13 +258,12 @@ def _organized_intrinsics(points: np.ndarray, intrinsics: Intrinsics | None, pat
 
 
 def npy_holds_points(path: Path) -> bool:
-    """Whether a ``.npy`` file's header says (N, 3) or (H, W, 3), i.e. points rather than a depth image."""
+    """Whether a ``.npy`` file's header says (N, 3) or (H, W, 3), i.e. points rather than a depth image.
+
+    Reads the header only, from a regular file only (see :func:`~.readers.check_file`)."""
     try:
-        with open(path, "rb") as f:
-            version = np.lib.format.read_magic(f)
-            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-            shape, _, _ = read(f)
-    except Exception:  # not a .npy (or a broken one): load_depth says what is wrong with it
+        shape, _ = npy_header(Path(path))
+    except CaptureError:  # not a .npy, a broken one, or not a regular file: load_depth says what is wrong
         return False
     return len(shape) in (2, 3) and shape[-1] == 3
 

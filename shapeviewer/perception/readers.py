@@ -10,7 +10,9 @@ expensive read (Open3D, PIL, numpy) so that a corrupt, truncated or oversized fi
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -26,15 +28,80 @@ class CaptureError(ShapeviewerError, ValueError):
 
 
 def check_file(path: str | os.PathLike) -> Path:
-    """``path`` as a Path, or CaptureError when it is missing, not a file or empty."""
+    """``path`` as a Path, or CaptureError when it is missing, not a regular file or empty.
+
+    Only the file's metadata is read (``os.stat``), never its contents: a named pipe (FIFO) or a
+    device called ``x.npy`` would block the first ``open`` or read forever, so it is refused here,
+    before any reader opens it.
+    """
     path = Path(path)
-    if not path.exists():
-        raise CaptureError(f"{path}: file not found")
-    if not path.is_file():
-        raise CaptureError(f"{path}: not a file")
-    if path.stat().st_size == 0:
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise CaptureError(f"{path}: file not found") from None
+    except OSError as e:  # permission denied, a name too long, a loop of links...
+        raise CaptureError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise CaptureError(f"{path}: not a file (a folder)")
+    if not stat.S_ISREG(info.st_mode):
+        raise CaptureError(f"{path}: not a regular file (a pipe, socket or device cannot be a capture)")
+    if info.st_size == 0:
         raise CaptureError(f"{path}: the file is empty")
     return path
+
+
+def open_regular(path: Path) -> BinaryIO:
+    """``path`` opened for binary reading, or CaptureError when it is not a regular file.
+
+    Opened without blocking (a FIFO put in the file's place after :func:`check_file` would
+    otherwise block the open until a writer came), then checked on the open descriptor itself.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise CaptureError(f"{path}: not a regular file (a pipe, socket or device cannot be a capture)")
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+def npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype]:
+    """``(shape, dtype)`` of a ``.npy`` file from its header alone; CaptureError when the file is
+    not a ``.npy`` array or holds Python objects (which only unpickling, i.e. running code the file
+    names, could read: never done here)."""
+    with open_regular(path) as f:
+        try:
+            version = np.lib.format.read_magic(f)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(f)
+        except Exception as e:  # ValueError, EOFError... for a broken or foreign file
+            raise CaptureError(f"{path}: not a readable .npy array ({_one_line(e)})") from None
+    if dtype.hasobject:
+        raise CaptureError(f"{path}: {NPY_OBJECTS}")
+    return tuple(shape), dtype
+
+
+# What a .npy of pickled Python objects is said to be (numpy's own message advises allow_pickle=True,
+# i.e. running whatever code the file names: never passed on).
+NPY_OBJECTS = "a .npy of Python objects is not a capture (expected a numeric array)"
+
+
+def load_npy(path: Path) -> np.ndarray:
+    """A numeric ``.npy`` array, memory-mapped (nothing is read until used, so sizes can be checked
+    first); CaptureError for a broken file or one of Python objects."""
+    npy_header(path)
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except Exception as e:  # ValueError, OSError, EOFError... for broken files
+        if "pickle" in str(e) or "Python objects" in str(e):
+            raise CaptureError(f"{path}: {NPY_OBJECTS}") from None
+        raise CaptureError(f"{path}: not a readable .npy array ({_one_line(e)})") from None
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:300] or type(e).__name__
 
 
 def _header_lines(path: Path, f, last_key: str) -> tuple[dict[str, list[str]], list[list[str]]]:
@@ -77,7 +144,7 @@ def _header_ints(path: Path, keys: dict[str, list[str]], key: str, n: int | None
 
 def pcd_layout(path: Path) -> tuple[int, int, int]:
     """``(points, width, height)`` of a PCD after checking its header and that its data is complete."""
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         keys, _ = _header_lines(path, f, "DATA")
         data_offset = f.tell()
         fields = keys.get("FIELDS", [])
@@ -148,7 +215,7 @@ def ply_layout(path: Path) -> tuple[int, int, int]:
 
     Organized when PCL's ``obj_info num_cols W`` / ``obj_info num_rows H`` lines say so.
     """
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         if f.readline(16).strip() != b"ply":
             raise CaptureError(f"{path}: not a PLY file (it does not start with 'ply')")
         keys, lines = _header_lines(path, f, "end_header")
@@ -208,7 +275,7 @@ def read_png_depth(path: Path, max_pixels: int) -> np.ndarray:
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with open_regular(path) as f, Image.open(f) as im:
             if im.width * im.height > max_pixels:  # checked before decoding the pixels
                 raise CaptureError(f"{path}: {im.width}x{im.height} pixels; at most {max_pixels:,} can be loaded")
             im.load()
@@ -227,10 +294,7 @@ def read_png_depth(path: Path, max_pixels: int) -> np.ndarray:
 def read_npy_depth(path: Path, max_pixels: int) -> np.ndarray:
     """A 2-D numeric ``.npy`` depth array, memory-mapped; CaptureError for a broken file, another
     shape or dtype, or more than ``max_pixels`` pixels (checked before reading)."""
-    try:
-        depth = np.load(path, mmap_mode="r", allow_pickle=False)  # mapped: the size is checked before reading
-    except Exception as e:  # ValueError, OSError, EOFError... for broken files
-        raise CaptureError(f"{path}: not a readable .npy array ({e})") from None
+    depth = load_npy(path)  # mapped: the size is checked before reading
     if not isinstance(depth, np.ndarray) or depth.ndim != 2:
         shape = getattr(depth, "shape", type(depth).__name__)
         raise CaptureError(f"{path}: expected a 2-D (H, W) depth array in metres, got {shape}")

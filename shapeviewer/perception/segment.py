@@ -224,6 +224,8 @@ def segment_scene(
     if min_height is not None and not 0 <= min_height < max_height:
         raise SegmentationError(f"need 0 <= min_height < max_height, got {min_height} and {max_height}")
     points = _flat_points(capture_or_points)
+    raw = capture_or_points.points_cam if isinstance(capture_or_points, Capture) else capture_or_points
+    width = int(np.shape(raw)[1]) if np.ndim(raw) == 3 else None  # organized: rows of `width` pixels
     with np.errstate(invalid="ignore"):
         # A sum is finite exactly when its terms are, and is much faster than isfinite(...).all(axis=1).
         finite = np.isfinite(points[:, 0] + points[:, 1] + points[:, 2])
@@ -263,11 +265,10 @@ def segment_scene(
         cluster_tolerance = max(cluster_tolerance, voxel_size)
         inverse, centroids = _voxel_downsample(pts, voxel_size)
     lap("downsample")
-    labels = _euclidean_clusters(centroids, cluster_tolerance)[inverse]
+    pairs = _close_pairs(centroids, cluster_tolerance)
+    labels = _components(len(centroids), pairs)[inverse]
     lap("cluster")
-    segments = _make_segments(
-        idx, pts, labels, min_points, max_extent, inverse, centroids, cluster_tolerance, object_range
-    )
+    segments = _make_segments(idx, pts, labels, min_points, max_extent, inverse, centroids, pairs, object_range, width)
     lap("segments")
     timings["total"] = time.perf_counter() - t0
     return Segmentation(segments, plane, T_world_cam, timings, table, min_height)
@@ -509,6 +510,96 @@ def flying_pixels(points_cam: np.ndarray) -> np.ndarray:
     return distances[:, FLYING_NEIGHBOURS] > FLYING_RADIUS * spacing
 
 
+def _box_distance(points: np.ndarray) -> float:
+    """Distance (m) from the camera centre to the axis-aligned bounding box of (N, 3) camera-frame points."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return float(np.linalg.norm(np.clip(0.0, lo, hi)))
+
+
+# The image neighbours (row, column offsets) that the organized flying-pixel test measures: half of
+# the 3x3 window, each pair being measured once for both of its pixels.
+_HALF_WINDOW = ((0, 1), (1, -1), (1, 0), (1, 1))
+# Relative margin kept between a distance measured here and a threshold: numpy and the KD-tree compute
+# the same sum of squares, and anything closer than this is settled by the KD-tree itself.
+_MARGIN = 1e-9
+
+
+def _flying_pixels_organized(points: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """:func:`flying_pixels` of one cluster of an organized cloud, the same answer at a fraction of the cost.
+
+    Args:
+        points: (N, 3) the cluster's points, camera frame, metres.
+        rows, cols: (N,) their pixels (distinct) in the depth image.
+
+    The KD-tree answers only the questions that the image cannot settle. Each point's distance to
+    its nearest 3x3 image neighbour in the cluster bounds its nearest-neighbour distance from above,
+    so the points whose bound lies clearly below the middle of the bounds' order are below the
+    median and need no query; the others' nearest neighbours are looked up (within the median of the
+    bounds, which the median lies below), and the median they give is checked to be theirs. A point
+    with :data:`FLYING_NEIGHBOURS` image neighbours within the radius is not a flying pixel; only the
+    others (silhouettes, depth edges) are counted with the KD-tree. Anything not settled this way
+    falls back to the full queries of :func:`flying_pixels`.
+    """
+    n = len(points)
+    if n <= FLYING_NEIGHBOURS:
+        return np.zeros(n, dtype=bool)
+    from scipy.spatial import cKDTree
+
+    # The cluster's points as images (NaN where no cluster point), one pixel of padding all round.
+    r = rows - rows.min() + 1
+    c = cols - cols.min() + 1
+    shape = (int(r.max()) + 2, int(c.max()) + 2)
+    image = np.full((3, *shape), np.nan)
+    image[:, r, c] = points.T
+    pairs = []  # (slice of the first pixels, slice of their neighbours, distance image)
+    upper = np.full(shape, np.inf)  # each pixel's nearest image neighbour's distance
+    for dr, dc in _HALF_WINDOW:
+        a = (slice(0, shape[0] - dr), slice(max(0, -dc), shape[1] - max(0, dc)))
+        b = (slice(dr, shape[0]), slice(max(0, dc), shape[1] - max(0, -dc)))
+        diff = image[(slice(None), *a)] - image[(slice(None), *b)]
+        distance = np.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2])
+        np.fmin(upper[a], distance, out=upper[a])
+        np.fmin(upper[b], distance, out=upper[b])
+        pairs.append((a, b, distance))
+    bound = upper[r, c]
+
+    # The median nearest-neighbour distance, exactly as np.median of all of them (flying_pixels).
+    tree = cKDTree(points, leafsize=32, balanced_tree=False)  # quicker to build, as quick to query
+    lo_k, hi_k = (n - 1) // 2, n // 2  # np.median's middle elements
+    ordered = np.partition(bound, [(9 * n) // 20, hi_k])
+    top = ordered[hi_k]  # the median lies at or below the median of the upper bounds
+    spacing = None
+    if top <= 0:
+        spacing = 0.0
+    elif np.isfinite(top):
+        low = ordered[(9 * n) // 20]
+        below = bound < low * (1 - _MARGIN)  # surely below `low`, so below the middle elements
+        nearest = np.full(n, -np.inf)
+        query = ~below
+        nearest[query] = tree.query(points[query], 2, distance_upper_bound=top * (1 + _MARGIN))[0][:, 1]
+        middle = np.partition(nearest, [lo_k, hi_k])
+        if middle[lo_k] >= low and np.isfinite(middle[hi_k]):  # the middle elements are exact
+            spacing = float(np.median(nearest))
+    if spacing is None:
+        spacing = float(np.median(tree.query(points, 2)[0][:, 1]))
+    if spacing <= 0:
+        return np.zeros(n, dtype=bool)
+
+    # Image neighbours surely within the radius; the points with fewer are counted by the KD-tree.
+    radius = FLYING_RADIUS * spacing
+    within = np.zeros(shape, dtype=np.int64)
+    for a, b, distance in pairs:
+        close = distance <= radius * (1 - _MARGIN)
+        within[a] += close
+        within[b] += close
+    flying = np.zeros(n, dtype=bool)
+    unsure = np.flatnonzero(within[r, c] < FLYING_NEIGHBOURS)
+    if len(unsure):
+        sixth = tree.query(points[unsure], FLYING_NEIGHBOURS + 1, distance_upper_bound=radius * (1 + 1e-6))[0]
+        flying[unsure] = sixth[:, FLYING_NEIGHBOURS] > radius
+    return flying
+
+
 def _object_parts(centroids: np.ndarray, labels: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """The cluster labels :func:`isolate` keeps: the largest cluster (``sizes``: points per label)
     and every cluster of at least ``PART_SHARE`` of its points with a voxel ``centroids`` within
@@ -527,14 +618,26 @@ def _object_parts(centroids: np.ndarray, labels: np.ndarray, sizes: np.ndarray) 
 
 def _euclidean_clusters(points: np.ndarray, tolerance: float) -> np.ndarray:
     """(N,) cluster label of every point: the connected components of "closer than ``tolerance``"."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    return _components(len(points), _close_pairs(points, tolerance))
+
+
+def _close_pairs(points: np.ndarray, tolerance: float) -> np.ndarray:
+    """(P, 2) int rows ``i < j`` of the (N, 3) points (metres) closer than ``tolerance`` (m) to each other."""
     from scipy.spatial import cKDTree
 
     if len(points) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return cKDTree(points).query_pairs(tolerance, output_type="ndarray")
+
+
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """(n,) label of every node: the connected components of the graph of edges ``pairs`` (P, 2)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if n == 0:
         return np.zeros(0, dtype=np.int64)
-    pairs = cKDTree(points).query_pairs(tolerance, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs), dtype=bool), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    graph = coo_matrix((np.ones(len(pairs), dtype=bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
 
 
@@ -546,25 +649,39 @@ def _make_segments(
     max_extent: float,
     inverse: np.ndarray,
     centroids: np.ndarray,
-    tolerance: float,
+    pairs: np.ndarray,
     object_range: float | None = None,
+    width: int | None = None,
 ) -> list[Segment]:
     """Segments of the clusters (``labels``: each point's) without their :func:`flying_pixels`,
     each split again into Euclidean clusters of its voxels (``inverse``: each point's voxel,
-    ``centroids``: the voxels' mean points) where only voxels of flying pixels joined it to a
-    neighbour; the parts that pass the size tests and lie within ``object_range`` (m) of the camera,
-    numbered nearest first (by their centroid's distance from the camera)."""
+    ``centroids``: the voxels' mean points, ``pairs``: the voxels closer than the cluster tolerance,
+    :func:`_close_pairs`) where only voxels of flying pixels joined it to a neighbour; the parts that
+    pass the size tests and lie within ``object_range`` (m) of the camera, numbered nearest first (by
+    their centroid's distance from the camera). ``width``: the pixels per image row of an organized
+    cloud (``idx`` are then pixel numbers), None for an unorganized one."""
     counts = np.bincount(labels, minlength=1)
     kept = []
     for label in np.flatnonzero(counts >= max(min_points, 1)):
         members = np.flatnonzero(labels == label)  # few clusters pass: cheaper than sorting all labels
+        if object_range is not None and _box_distance(points[members]) > object_range * (1 + 1e-9):
+            continue  # every part's centroid lies in the cluster's box, so none is within object_range
         voxels = inverse[members]
-        solid = ~flying_pixels(points[members])
+        if width is None:
+            solid = ~flying_pixels(points[members])
+        else:
+            solid = ~_flying_pixels_organized(points[members], *np.divmod(idx[members], width))
         members, solid_voxels = members[solid], voxels[solid]
-        kept_voxels, voxel_of = np.unique(solid_voxels, return_inverse=True)
+        kept_voxels = np.flatnonzero(np.bincount(solid_voxels, minlength=len(centroids)))
         parts = np.zeros(len(members), dtype=np.int64)
-        if len(kept_voxels) < len(np.unique(voxels)):  # voxels of flying pixels alone may have bridged a gap
-            parts = _euclidean_clusters(centroids[kept_voxels], tolerance)[voxel_of.reshape(-1)]
+        if len(kept_voxels) < np.count_nonzero(np.bincount(voxels, minlength=len(centroids))):
+            # Voxels of flying pixels alone may have bridged a gap: the clusters of the voxels left are
+            # the components of the voxel graph without the others.
+            position = np.full(len(centroids), -1)
+            position[kept_voxels] = np.arange(len(kept_voxels))
+            ends = position[pairs]
+            kept_pairs = ends[(ends[:, 0] >= 0) & (ends[:, 1] >= 0)]
+            parts = _components(len(kept_voxels), kept_pairs)[position[solid_voxels]]
         for part in np.flatnonzero(np.bincount(parts, minlength=1) >= max(min_points, 1)):
             part_members = members[parts == part]
             pts = points[part_members]

@@ -12,10 +12,12 @@ killed and replaced.
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing as mp
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -37,9 +39,53 @@ STOP_SECONDS = 0.2  # what shutdown waits for a worker to leave before killing i
 REAP_SECONDS = 5.0
 
 
+# How often a worker looks whether its parent is still there (see die_with_parent).
+PARENT_POLL_SECONDS = 0.5
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent(parent: int | None = None, *, kernel: bool = True) -> None:
+    """Make this worker process end as soon as its parent does, even when the parent is killed
+    with SIGKILL and can clean nothing up (a worker left running would go on writing results).
+
+    Called first thing in a worker. ``parent``: the parent's process id as the parent knew it
+    (default: the current parent). Two ways, both kept:
+
+    * ``kernel``: Linux's ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, the kernel kills us the moment the
+      parent dies. It fires when the parent's *thread* that started us ends, so it suits workers
+      started by a parent's main thread only (a pool made in ``evaluate``), not by a server's
+      short-lived threads.
+    * a daemon thread that looks every :data:`PARENT_POLL_SECONDS` whether the parent is still
+      ours (an orphan is re-parented), and then ends this process, and its process group when the
+      worker leads one (so that what it started goes too).
+
+    A parent that died before this call is noticed at once.
+    """
+    parent = os.getppid() if parent is None else parent
+    if kernel and sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):  # no prctl: the thread below still does it
+            pass
+    if os.getppid() != parent:
+        _end_orphan()
+    threading.Thread(target=_watch_parent, args=(parent,), name="watch-parent", daemon=True).start()
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_SECONDS)
+    _end_orphan()
+
+
+def _end_orphan() -> None:
+    if os.getpgrp() == os.getpid():  # a group of our own: what we started goes with us
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+    os._exit(1)
+
+
 # The name this module used for :class:`~shapeviewer.errors.Cancelled` (a job cancelled before
 # it had a worker, or whose worker did not stop in time and was killed); viewer.grasps.work uses it.
-JobCancelled = Cancelled
 
 
 class WorkerDied(ShapeviewerError, RuntimeError):
@@ -53,12 +99,15 @@ class RemoteTraceback(ShapeviewerError):
         return str(self.args[0])
 
 
-def _serve(conn: Connection, nice: int) -> None:
+def _serve(conn: Connection, nice: int, parent: int | None = None) -> None:
     """A worker's loop: run each ``(fn, args, kwargs)`` received with ``progress`` and ``cancel``
     keywords, answer with its result or exception, until ``None`` or the pipe closes. During a
-    job the only message that can arrive is ``"cancel"``."""
+    job the only message that can arrive is ``"cancel"``. The worker (and what it started) ends
+    with its ``parent``, the server, however the server ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle: it stops us
     os.setpgrp()  # a group of its own, so that killing it also kills what it started (V-HACD)
+    # Not the kernel's parent-death signal: the server starts workers from its threads, which may end first.
+    die_with_parent(parent, kernel=False)
     if nice:
         os.nice(nice)
     last = [-1]
@@ -109,7 +158,9 @@ class _Worker:
 
     def _start(self) -> None:
         parent, child = self._ctx.Pipe()
-        self.process = self._ctx.Process(target=_serve, args=(child, self.nice), name=self.name, daemon=True)
+        self.process = self._ctx.Process(
+            target=_serve, args=(child, self.nice, os.getpid()), name=self.name, daemon=True
+        )
         self.process.start()
         child.close()
         self.conn = parent

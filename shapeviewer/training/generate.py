@@ -301,12 +301,29 @@ def generate(
     workers: int | None = None,
     backend: str = "process",
     progress: bool = True,
+    *,
+    objects_dirs: list[str] | list[Path] | None = None,
 ) -> dict:
     """Generate shards for many objects (all catalogue objects by default) and write the manifest.
 
     ``backend`` is ``process`` (all cores of this machine) or ``ray`` (a Ray cluster, ``ray.init()``
-    connects to ``RAY_ADDRESS`` or starts a local one).
+    connects to ``RAY_ADDRESS`` or starts a local one). ``objects_dirs``: folders of URDF objects
+    (:mod:`shapeviewer.sim.urdf_objects`) whose ``urdf/<set>/<NAME>`` objects join the catalogue for
+    this run and its worker processes (:func:`catalogue.objects_from`; a Ray cluster's nodes read
+    ``SHAPEVIEWER_OBJECTS`` of their own).
     """
+    with catalogue.objects_from(objects_dirs):
+        return _generate(out_dir, config, objects, workers, backend, progress)
+
+
+def _generate(
+    out_dir: str | Path,
+    config: GenerationConfig,
+    objects: list[str] | None,
+    workers: int | None,
+    backend: str,
+    progress: bool,
+) -> dict:
     from tqdm import tqdm
 
     out_dir = Path(out_dir)

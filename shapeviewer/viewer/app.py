@@ -32,9 +32,10 @@ from . import panel as P
 from .audience import Audience
 from .context import SessionResources
 from .dataset import DEFAULT, SampleBuild
-from .guard import Guard, server_url, start_server
+from .guard import Guard, UploadLimit, listen_port, server_url, start_server
 from .jobs import WorkerPool
 from .session import Session
+from .sources import upload_name, upload_problem
 from .state import LoadedScene, load_scene
 
 log = logging.getLogger(__name__)
@@ -65,6 +66,12 @@ class ViewerApp:
         workers: jobs of all sessions that compute at once (default: the CPU count, at most 4).
         sessions: True (default): each browser tab gets its own session. False: no session opens
             by itself (a script or test opens one with :meth:`open_session`).
+        max_upload_bytes: the largest capture a browser may upload; larger ones are refused when
+            the browser announces their size, before any of their bytes is kept (:class:`.guard.UploadLimit`).
+
+    Raises:
+        ServeError: ``host`` is not an address of this machine, or no port from ``port`` on can be
+            listened on (:func:`.guard.listen_port`).
     """
 
     def __init__(
@@ -83,6 +90,7 @@ class ViewerApp:
         data_dir: str | Path | None = None,
         workers: int | None = None,
         sessions: bool = True,
+        max_upload_bytes: int = P.MAX_UPLOAD_MB * 2**20,
     ) -> None:
         data_path = None if data_dir is None else Path(data_dir).expanduser().resolve()
         if data_path is not None and not data_path.is_dir():
@@ -101,11 +109,19 @@ class ViewerApp:
         self._stopping = False
         self.res: SessionResources | None = None  # set once the model and the first scene are loaded
         self._waiting: dict[int, viser.NotificationHandle] = {}  # client id -> "loading" note, until res
+        port = listen_port(host, port)  # a bad --host or --port: one clear error, not a hung thread
         # Only this machine's browser (or, off localhost, holders of the token) may drive the app.
         self.guard = Guard.for_host(host, token, allow_hosts)
         self.server = start_server(host, port, self.guard)
         self.port = self.server.get_port()
         self.host = host
+        self.max_upload_bytes = int(max_upload_bytes)
+        self.uploads = UploadLimit(self.max_upload_bytes, self._upload_refused)
+        try:
+            self.uploads.install(self.server.gui)  # headless sessions' upload buttons
+        except BaseException:
+            self.server.stop()
+            raise
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
         # Docked, the panel takes its own column instead of floating over (and hiding) the scene.
         self.server.gui.main_panel.dock_right()
@@ -139,6 +155,7 @@ class ViewerApp:
                 grasp_pool=ProcessPool(max(1, workers // 2), name="viewer-grasp"),
                 intrinsics=intrinsics,
                 data_dir=data_path,
+                max_upload_bytes=self.max_upload_bytes,
                 max_cloud_points=max_cloud_points,
                 results=results_path,
                 sample_build=sample_build,
@@ -163,6 +180,8 @@ class ViewerApp:
         that every browser sees it: for scripts and tests. Closed by :meth:`stop`."""
         if self.res is None:
             raise RuntimeError("the viewer is still loading")
+        if client is not None:
+            self.uploads.install(client.gui)  # before the tab's upload button exists
         session = Session(Audience(self.server, client), self.res, self.seed)
         with self._sessions_lock:
             if client is None:
@@ -255,6 +274,18 @@ class ViewerApp:
             session.close()
             del session
             release_memory()
+
+    def _upload_refused(self, client_id: int, filename: str, size: int, announced: bool) -> None:
+        """Tell the browser that sent it why an upload was refused (on viser's event loop: only
+        queues messages)."""
+        shown = upload_name(filename)  # one line, and short
+        problem = upload_problem(shown, size, self.max_upload_bytes) or "more bytes than it announced"
+        if not announced:
+            problem = f"{problem} (refused while receiving)"
+        log.warning("refused an upload from client %s: %s: %s", client_id, shown, problem)
+        client = self.server.get_clients().get(client_id)
+        if client is not None:
+            client.add_notification("Could not load the capture", f"{shown}: {problem}", color="red")
 
     def _dataset_tabs(self) -> list:
         with self._sessions_lock:

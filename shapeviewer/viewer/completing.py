@@ -4,14 +4,17 @@ its confidence (the 8 sample completions).
 
 Every job takes the session's job slot (:class:`~.jobs.JobQueue`), computes in the server's worker
 pool and draws through :class:`~.drawing.PipelineDrawing`; results are kept on the session's
-:class:`~.results.PipelineState` (one :class:`~.results.SegmentResult` per segment). Meshes are
-computed in the camera optical frame and drawn in the world frame.
+:class:`~.results.PipelineState` (one :class:`~.results.SegmentResult` per segment). Choosing a
+segment that has a result brings it back as it was made (:meth:`CompletionJobs.choose`); only
+Complete segment and Complete all make a segment's completion anew. Meshes are computed in the
+camera optical frame and drawn in the world frame.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import trimesh
 import viser
@@ -21,7 +24,7 @@ from ..completion.reconstruct import fast_mesh
 from ..grasp.robust import sample_meshes
 from . import panel as P
 from .context import SessionContext
-from .gui import set_value
+from .gui import plural, set_value
 from .jobs import READY
 from .results import SegmentResult
 from .state import MESH_TITLES, make_mesh
@@ -34,10 +37,14 @@ class CompletionJobs:
 
     Args:
         ctx: the session's parts (its results go to ``ctx.state``).
+        moved_on: called when a completion is drawn (made, or brought back by choosing its
+            segment): the user has moved on from what was shown before (the session shows the layers
+            that executing a grasp on the ground truth hid).
     """
 
-    def __init__(self, ctx: SessionContext) -> None:
+    def __init__(self, ctx: SessionContext, moved_on: Callable[[], None] = lambda: None) -> None:
         self.ctx = ctx
+        self.moved_on = moved_on
 
     def complete(self, ids: list[int] | None, client: viser.ClientHandle | None) -> list[Completion]:
         """Complete segments ``ids`` (None: every usable one) in one batch, draw them, and fill the
@@ -46,6 +53,26 @@ class CompletionJobs:
             if not ok or self.ctx.state.scene is None:
                 return []
             return self._complete_in_slot(ids, client)
+
+    def choose(self, segment_id: int, client: viser.ClientHandle | None) -> Completion | None:
+        """Select segment ``segment_id`` (picked in the Segment dropdown or clicked in 3D).
+
+        A segment completed earlier comes back as it was made, without computing anything: its
+        completion (CNN input and output, sample completions, fast mesh), the detailed mesh,
+        baselines and grasp envelope made of it, and its stage times, drawn again. Any other
+        segment is completed. Returns the segment's completion, or None when it has none and cannot
+        be completed or another job is running (the client is told why).
+        """
+        ctx, state = self.ctx, self.ctx.state
+        with ctx.jobs.take(client) as ok:
+            if not ok or state.scene is None:
+                return None
+            result = state.results.get(segment_id)
+            if result is None:
+                done = self._complete_in_slot([segment_id], client)
+                return done[0] if done else None
+            self._bring_back(result)
+            return result.completion
 
     def compute_mesh(
         self, kind: str, segment_id: int | None, client: viser.ClientHandle | None
@@ -167,7 +194,7 @@ class CompletionJobs:
             )
         if not usable:
             return []
-        what = f"segment {usable[0][0]}" if single else f"{len(usable)} segments"
+        what = f"segment {usable[0][0]}" if single else plural(len(usable), "segment")
         ctx.set_status(f"_Completing {what}..._")
         try:
             done = ctx.res.pool.run(
@@ -190,10 +217,14 @@ class CompletionJobs:
             ctx.set_status(READY)
             return []
         # A new completion starts without the meshes made of the segment's earlier one.
-        state.results.update({c.segment_id: SegmentResult(c) for c in done})
-        title = f"Segment **{done[0].segment_id}**" if single else f"All **{len(done)}** segments (totals)"
+        share = send / len(done)  # of sending the batch, each segment's (for when it is chosen again)
+        state.results.update(
+            {c.segment_id: SegmentResult(c, timings=P.completion_timings([c], scene.seg_seconds, share)) for c in done}
+        )
+        title = f"Segment **{done[0].segment_id}**" if len(done) == 1 else f"All **{len(done)}** segments (totals)"
         state.last_timings = P.completion_timings(done, scene.seg_seconds, send)
         ctx.panel.timings.content = P.completion_timings_markdown(title, state.last_timings)
+        self.moved_on()
         ctx.set_status(f"Completed {what}. Click a segment to complete it.")
         empty = [f"segment {c.segment_id}: {c.error}" for c in done if c.fast_mesh is None]
         if empty:
@@ -236,6 +267,28 @@ class CompletionJobs:
             client, f"{title} ready", f"Segment {sid}: {len(mesh.faces):,} triangles in {seconds:.1f} s.", "green"
         )
         return mesh
+
+    def _bring_back(self, result: SegmentResult) -> None:
+        """Select, draw and describe a segment's ``result`` as it was made (the caller holds the job slot)."""
+        ctx = self.ctx
+        scene = ctx.state.scene
+        assert scene is not None  # ``result`` is of one of its segments
+        c = result.completion
+        sid = c.segment_id
+        ctx.select(sid)
+        self._draw_completion(c)
+        for kind, mesh in result.meshes.items():
+            ctx.drawing.draw_mesh(scene, kind, sid, mesh)
+        ctx.audience.flush()
+        self.moved_on()
+        kept = [MESH_TITLES[kind].lower() for kind in result.meshes]
+        title = f"Segment **{sid}** (completed earlier" + (f"; kept: {', '.join(kept)})" if kept else ")")
+        ctx.panel.timings.content = P.completion_timings_markdown(title, result.timings)
+        ctx.set_status(
+            f"Segment {sid}: its completion"
+            + (f" and {', '.join(kept)}" if kept else "")
+            + " as made earlier. **Complete segment** makes it anew."
+        )
 
     def _draw_completion(self, c: Completion) -> None:
         ctx = self.ctx

@@ -19,11 +19,17 @@ viser serves its page and its WebSocket on one port with ``websockets``, whose `
 
 Refused requests get ``403 Forbidden`` and a one-line reason; they are logged (once per reason).
 ``--allow-host NAME`` adds a name (e.g. a DNS alias of the machine) to the accepted ``Host`` names.
+
+Before the server starts, :func:`listen_port` checks that ``--host`` names an address of this machine
+and finds a port it can listen on (:class:`ServeError` otherwise: viser would retry in its thread
+and wait forever). Once it runs, :class:`UploadLimit` refuses browser uploads over the cap as soon
+as their size is announced, and a client whose parts outgrow what it announced while they arrive.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import http
 import http.cookies
 import ipaddress
@@ -33,12 +39,17 @@ import socket
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+import rich
 import viser
 import websockets.asyncio.server as ws_server
+from viser import _messages as viser_messages
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
+
+from ..errors import ShapeviewerError
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +57,10 @@ TOKEN_PARAM = "token"
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 WILDCARD_HOSTS = frozenset({"", "0.0.0.0", "::"})
 _MAX_LOGGED = 100
+# Ports tried from --port on when it is in use (viser's own retries happen in its thread, unseen).
+PORT_TRIES = 100
+# How long resolving --host may take before the name is called unresolvable.
+RESOLVE_SECONDS = 5.0
 
 ProcessRequest = Callable[[ServerConnection, Request], "Response | None"]
 
@@ -196,6 +211,89 @@ class Guard:
         return process_request
 
 
+class ServeError(ShapeviewerError, OSError):
+    """The server cannot listen where it was asked to (``--host``, ``--port``); the message says why in one line."""
+
+
+def _addresses(host: str, port: int) -> list[tuple]:
+    """What ``host`` resolves to for listening (as asyncio's ``create_server`` asks), within
+    :data:`RESOLVE_SECONDS`; ServeError when it does not resolve."""
+    answer: list = []
+
+    def resolve() -> None:
+        try:
+            answer.append(socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE))
+        except OSError as e:
+            answer.append(e)
+
+    worker = threading.Thread(target=resolve, name="resolve-host", daemon=True)
+    worker.start()
+    worker.join(RESOLVE_SECONDS)
+    if not answer:
+        raise ServeError(f"--host {host}: the name did not resolve within {RESOLVE_SECONDS:.0f} s")
+    if isinstance(answer[0], OSError):
+        reason = answer[0].strerror or str(answer[0])
+        raise ServeError(f"--host {host}: cannot resolve the name ({reason}); give a name or address of this machine")
+    return [info for info in answer[0] if info[0] in (socket.AF_INET, socket.AF_INET6)]
+
+
+def _bind_error(infos: list[tuple], port: int) -> OSError | None:
+    """The error binding every address of ``infos`` on ``port`` raises (None: all bind), tried as
+    asyncio's ``create_server`` binds (address reuse, IPv6 sockets IPv6 only)."""
+    sockets: list[socket.socket] = []
+    try:
+        for family, kind, proto, _, address in infos:
+            sock = socket.socket(family, kind, proto)
+            sockets.append(sock)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6 and hasattr(socket, "IPPROTO_IPV6"):
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind((address[0], port, *address[2:]))
+    except OSError as e:
+        return e
+    finally:
+        for sock in sockets:
+            sock.close()
+    return None
+
+
+def listen_port(host: str, port: int, tries: int = PORT_TRIES) -> int:
+    """The port the server will listen on: ``port``, or the next free one after it (as viser
+    does, at most ``tries`` of them, never past 65535).
+
+    Checked here, before viser starts, because viser retries a failed bind in its own thread on up
+    to a thousand ports and then waits forever (and an out-of-range port kills that thread with a
+    traceback): a bad ``--host`` or ``--port`` must be one clear line instead.
+
+    Raises:
+        ServeError: ``host`` does not resolve or is not an address of this machine, ``port`` needs
+            privileges this process lacks, or it and the ports after it are all in use.
+    """
+    if not 0 <= port <= 65535:
+        raise ServeError(f"--port {port}: not a port (0-65535)")
+    infos = _addresses(host, port)
+    if not infos:
+        raise ServeError(f"--host {host}: resolves to no IPv4 or IPv6 address")
+    last = min(65535, port + max(1, tries) - 1) if port else 0
+    for candidate in range(port, last + 1):
+        error = _bind_error(infos, candidate)
+        if error is None:
+            return candidate
+        if error.errno == errno.EADDRINUSE:
+            continue
+        reason = error.strerror or str(error)
+        if error.errno == errno.EADDRNOTAVAIL:
+            raise ServeError(f"--host {host}: not an address of this machine ({reason}); use 127.0.0.1 or 0.0.0.0")
+        if error.errno in (errno.EACCES, errno.EPERM):
+            raise ServeError(
+                f"--port {candidate}: cannot listen there ({reason}); ports below 1024 need administrator "
+                "rights: use a port from 1024 up"
+            )
+        raise ServeError(f"cannot listen on {host}:{candidate} ({reason})")
+    after = f", and so is every port after it up to {last}" if last > port else ""
+    raise ServeError(f"--port {port}: in use on {host}{after}; choose another --port")
+
+
 _PATCH_LOCK = threading.Lock()
 
 
@@ -220,11 +318,16 @@ def start_server(host: str, port: int, guard: Guard) -> viser.ViserServer:
         return original(*args, **kwargs)
 
     # setattr, not an assignment: mypy refuses a function in place of ``serve`` (a class there).
+    console = rich.get_console()
     with _PATCH_LOCK:
         setattr(ws_server, "serve", guarded_serve)  # noqa: B010
+        # viser prints a box of its URLs whatever ``verbose`` says, without the token: the only
+        # URL a user should see is the one the app prints (:func:`server_url`).
+        quiet, console.quiet = console.quiet, True
         try:
             server = viser.ViserServer(host=host, port=port, verbose=False)
         finally:
+            console.quiet = quiet
             setattr(ws_server, "serve", original)  # noqa: B010
     if not installed:
         server.stop()
@@ -242,3 +345,109 @@ def server_url(host: str, port: int, guard: Guard) -> str:
         name = f"[{name}]"
     query = f"/?{TOKEN_PARAM}={guard.token}" if guard.token is not None else ""
     return f"http://{name}:{port}{query}"
+
+
+# ----------------------------------------------------------------------------------------------
+# Uploads
+
+# (client id, the browser's file name, bytes announced or received, whether the size was announced)
+UploadRefused = Callable[[int, str, int, bool], None]
+
+
+class UploadLimit:
+    """Refuses browser uploads of more than ``max_bytes``, before their bytes are kept.
+
+    viser's upload button sends a start message announcing the file's name and size, then the file
+    in parts of 512 KB, and keeps every part in memory until the last one has come; only then does
+    the app's ``on_upload`` see the file. Its size check there came after the whole file was in
+    memory (and the file stayed referenced as the button's value). viser offers no public hook on
+    the transfer, so :meth:`install` hooks its message handling, on each GUI that has upload buttons:
+
+    * the GUI's table of transfers in progress (``GuiApi._current_file_upload_states``) becomes
+      one that never stores a transfer announced over the cap, so every part of it is dropped as
+      it arrives; and it counts each stored transfer's bytes as its parts arrive, dropping the
+      transfer (and every part it kept) once they exceed the cap or what was announced;
+    * a handler of the start message, run after viser's own, tells ``refused`` and answers the
+      browser that the transfer is over, so that its upload button works again.
+
+    ``refused`` is called on viser's event loop thread: it must only queue messages.
+    """
+
+    def __init__(self, max_bytes: int, refused: UploadRefused) -> None:
+        self.max_bytes = int(max_bytes)
+        self.refused = refused
+
+    def install(self, gui: viser.GuiApi) -> None:
+        """Hook ``gui`` (``server.gui`` or a tab's ``client.gui``; once is enough, again is a no-op).
+
+        Raises:
+            RuntimeError: a viser whose upload handling this does not know: refusing to serve
+                uploads uncapped.
+        """
+        current = getattr(gui, "_current_file_upload_states", None)
+        interface = getattr(gui, "_websock_interface", None)
+        if isinstance(current, _Transfers):
+            return
+        if not isinstance(current, dict) or not hasattr(interface, "register_handler"):
+            raise RuntimeError(
+                f"viser {viser.__version__} keeps uploads in a way this app does not know: "
+                "the upload size cap cannot be installed"
+            )
+        gui._current_file_upload_states = _Transfers(self, current)  # type: ignore[attr-defined]
+        assert interface is not None
+        handler = self._handler(gui, interface)
+        interface.register_handler(viser_messages.FileTransferStartUpload, handler)
+
+    def _handler(self, gui: viser.GuiApi, interface: Any) -> Callable[[int, Any], None]:
+        def started(client_id: int, message: Any) -> None:
+            inputs = getattr(gui, "_gui_input_handle_from_uuid", {})
+            if message.source_component_uuid not in inputs or message.size_bytes <= self.max_bytes:
+                return
+            # Nothing of it is kept (see _Transfers): say so, and end the browser's transfer.
+            interface.queue_message(
+                viser_messages.FileTransferPartAck(
+                    source_component_uuid=message.source_component_uuid,
+                    transfer_uuid=message.transfer_uuid,
+                    transferred_bytes=message.size_bytes,
+                    total_bytes=message.size_bytes,
+                )
+            )
+            self.refused(client_id, message.filename, message.size_bytes, True)
+
+        return started
+
+
+class _Transfers(dict):
+    """viser's table of uploads in progress (transfer id -> state), capped (see :class:`UploadLimit`)."""
+
+    def __init__(self, limit: UploadLimit, current: dict) -> None:
+        super().__init__(current)
+        self.limit = limit
+
+    def __setitem__(self, transfer_uuid: str, state: Any) -> None:
+        if int(state["total_bytes"]) > self.limit.max_bytes:
+            return  # never stored: viser drops each of its parts on arrival (an unknown transfer)
+        state["parts"] = _Parts(self, transfer_uuid, state)
+        super().__setitem__(transfer_uuid, state)
+
+
+class _Parts(dict):
+    """The parts of one upload kept so far (index -> bytes), counted as they arrive."""
+
+    def __init__(self, transfers: _Transfers, transfer_uuid: str, state: Any) -> None:
+        super().__init__()
+        self.transfers = transfers
+        self.transfer_uuid = transfer_uuid
+        self.state = state
+        self.received = 0
+
+    def __setitem__(self, index: int, content: bytes) -> None:
+        self.received += len(content)
+        limit = self.transfers.limit
+        if self.received <= min(limit.max_bytes, int(self.state["total_bytes"])):
+            super().__setitem__(index, content)
+            return
+        # More than the cap, or than the client announced: drop the transfer and all it kept.
+        self.clear()
+        self.transfers.pop(self.transfer_uuid, None)
+        limit.refused(int(self.state["client_id"]), str(self.state["filename"]), self.received, False)

@@ -18,7 +18,7 @@ from ..perception.capture import Capture, CaptureError, load_capture
 from . import panel as P
 from . import sources
 from .context import SessionContext
-from .gui import set_value
+from .gui import set_value, unlisted_problem
 from .state import LoadedScene, load_scene
 
 log = logging.getLogger(__name__)
@@ -83,12 +83,16 @@ class SceneLoading:
             return False
         try:
             path = sources.data_file(ctx.res.data_dir, name)
+            problem = unlisted_problem(name, self.data_files())  # a value the client forged
+            if problem is not None:
+                raise CaptureError(problem)
         except CaptureError as e:
             ctx.notify(client, "Could not load the capture", str(e), "red")
             return False
         finally:
             self._refresh_data_files()
-        return self.load_cloud(path, client)
+        shown = sources.one_line(name)  # messages name the file as listed, never the server's path
+        return self.load(lambda: load_capture(path, intrinsics=ctx.res.intrinsics, name=shown), shown, client)
 
     def load(self, make: Callable[[], Capture | LoadedScene], what: str, client: viser.ClientHandle | None) -> bool:
         """Show the capture (or segmented scene) ``make`` returns, computed in the worker pool;
@@ -104,7 +108,12 @@ class SceneLoading:
                     ctx.notify(client, "Large capture", decimated, "yellow")
                 return True
             except Exception as e:  # any bad input: tell the user, keep the current scene
-                log.warning("loading %s failed: %s", what, e, exc_info=not isinstance(e, (ValueError, OSError)))
+                log.warning(
+                    "loading %s failed: %s",
+                    sources.one_line(what),
+                    sources.one_line(str(e)),
+                    exc_info=not isinstance(e, (ValueError, OSError)),
+                )
                 ctx.notify(client, "Could not load the capture", str(e) if what in str(e) else f"{what}: {e}", "red")
                 return False
             finally:
@@ -140,7 +149,7 @@ class SceneLoading:
 
         n_valid = int(capture.valid_mask().sum())
         panel.source.content = P.source_markdown(
-            scene.title,
+            sources.markdown_text(scene.title),
             len(capture.flat_points()),
             n_valid,
             len(scene.segments),

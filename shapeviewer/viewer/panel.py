@@ -18,7 +18,7 @@ from ..export import MESH_FORMATS
 from .state import MESH_KINDS, MESH_TITLES
 
 NO_SEGMENT = "(none)"
-N_SAMPLES = len(SYMMETRIES)  # sample completions behind the Confidence layer and the Sample slider
+N_SAMPLES = len(SYMMETRIES)  # sample completions behind the Confidence layer and the Sample field
 NO_DATA_FILE = "(no capture files)"
 # The upload button's file filter (browsers match either the suffix or the MIME type).
 UPLOAD_MIME_TYPES = ".pcd,.ply,.png,.npy"
@@ -114,7 +114,9 @@ class Panel:
     layers: dict[str, viser.GuiCheckboxHandle]
     cloud_colors: viser.GuiDropdownHandle
     shade_output: viser.GuiCheckboxHandle
-    sample: viser.GuiSliderHandle
+    # A number field, not a slider: viser's client orbits the camera on arrow keys unless a text
+    # field has the focus, and a slider's thumb is no text field (see build_panel).
+    sample: viser.GuiNumberHandle
     export_frame: viser.GuiDropdownHandle
     mesh_format: viser.GuiDropdownHandle
     export_mesh_kind: viser.GuiDropdownHandle
@@ -151,7 +153,12 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
         model = gui.add_markdown("")
     with gui.add_folder("Completion"):
         segment = gui.add_dropdown("Segment", (NO_SEGMENT,), hint="Pick a segment to complete (or click it in 3D)")
-        complete = gui.add_button("Complete segment", icon=viser.Icon.CUBE, hint="Fast-complete the selected segment")
+        complete = gui.add_button(
+            "Complete segment",
+            icon=viser.Icon.CUBE,
+            hint="Fast-complete the selected segment anew (choosing a completed segment brings back what was "
+            "made of it; this drops its detailed mesh and baselines)",
+        )
         complete_all = gui.add_button(
             "Complete all", icon=viser.Icon.BOX_MULTIPLE, hint="Fast-complete every segment in one batched CNN pass"
         )
@@ -199,14 +206,17 @@ def build_panel(gui: viser.GuiApi, seed: int, data_files: tuple[str, ...] | None
             True,
             hint="Colour CNN output voxels by occupancy probability (yellow: barely in the grid, red: sure)",
         )
-        sample = gui.add_slider(
+        # viser's client moves the camera on the arrow keys (and W/A/S/D/Q/E) wherever the focus is,
+        # except in a text field (INPUT, TEXTAREA, SELECT): a slider's thumb would step the sample and
+        # orbit the view at once, a number field's arrows step the sample alone.
+        sample = gui.add_number(
             "Sample",
+            0,
             min=0,
             max=N_SAMPLES,
             step=1,
-            initial_value=0,
-            hint=f"Step through the CNN's {N_SAMPLES} sample completions of the selected segment (0: none; "
-            "1: the view as seen, the others mirrored; the completion is their mean); "
+            hint=f"Step through the CNN's {N_SAMPLES} sample completions of the selected segment with the arrows "
+            "(0: none; 1: the view as seen, the others mirrored; the completion is their mean); "
             "where they differ, the network guesses",
         )
     with gui.add_folder("Load a scene"):
@@ -287,7 +297,8 @@ def source_markdown(
     metres; None: no table), segmentation time, which world frame."""
     band = "no table found" if min_height is None else f"cut {min_height * 1000:.0f} mm above the table"
     return (
-        f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** segments, {band}  \n"
+        f"**{source}**  \n{n_valid:,} valid of {n_points:,} points · **{n_segments}** "
+        f"{'segment' if n_segments == 1 else 'segments'}, {band}  \n"
         f"segmentation {seg_seconds * 1000:.0f} ms · {frame_note}"
     )
 

@@ -3,8 +3,9 @@ meshes the user asked for after it.
 
 No viser. A :class:`~shapeviewer.completion.pipeline.Completion` is read-only: the detailed mesh,
 the baselines and the grasp envelope the user computes later are kept beside it on the segment's
-:class:`SegmentResult`, and go with it when the segment is completed again. Meshes are in the
-camera optical frame (metres); the scene's ``T_world_cam`` takes them to the world frame.
+:class:`SegmentResult`: choosing the segment again brings them back, and they go with the
+completion only when the segment is completed anew (Complete segment, Complete all). Meshes are in
+the camera optical frame (metres); the scene's ``T_world_cam`` takes them to the world frame.
 """
 
 from __future__ import annotations
@@ -28,12 +29,15 @@ class SegmentResult:
         seconds: kind -> the seconds it took to compute that mesh.
         detailed_steps: Algorithm 1's step times (seconds, the dict
             :func:`~shapeviewer.completion.reconstruct.detailed_mesh` fills) of the detailed mesh.
+        timings: seconds per stage of the completion, as the stage panel showed them (see
+            :func:`~.panel.completion_timings`), shown again when the segment is chosen later.
     """
 
     completion: Completion
     meshes: dict[str, trimesh.Trimesh] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     detailed_steps: dict[str, float] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
 
     def mesh(self, kind: str) -> trimesh.Trimesh | None:
         """Camera-frame mesh ``kind`` (one of :data:`~.state.MESH_KINDS`): the completion's fast mesh

@@ -42,7 +42,7 @@ from .dataset import DatasetHooks, DatasetTab
 from .drawing import PipelineDrawing
 from .exports import segment_export
 from .grasps import GraspController, GraspHost, GraspJob
-from .gui import set_value
+from .gui import set_value, take_upload
 from .jobs import JobQueue, send_download
 from .loading import SceneLoading
 from .rays import first_hit
@@ -76,7 +76,9 @@ class Session:
         self.drawing = PipelineDrawing(audience, res.max_cloud_points)
         self.jobs = JobQueue(self.panel.job_buttons, self.notify)
         self.ctx = SessionContext(audience, res, self.panel, self.drawing, self.jobs, self.state, self.notify)
-        self.completing = CompletionJobs(self.ctx)
+        # A completion drawn (made or brought back): the layers that executing a grasp on the
+        # ground truth hid come back (the lambda reads self.grasps once it exists).
+        self.completing = CompletionJobs(self.ctx, moved_on=lambda: self.grasps.restore_layers())
         self.loading = SceneLoading(self.ctx, self._before_new_scene)
         host_api = GraspHost(
             scene=lambda: self.state.scene,
@@ -85,6 +87,7 @@ class Session:
             make_mesh=self.completing.make_mesh_for_grasps,
             samples=self.completing.sample_meshes_world,
             show_layer=self._show_layer,
+            layer_shown=lambda key: bool(self.panel.layers[key].value),
             set_status=self.ctx.set_status,
             notify=self.notify,
         )
@@ -201,8 +204,9 @@ class Session:
 
     def click(self, ray_origin: np.ndarray, ray_direction: np.ndarray, client: viser.ClientHandle | None = None) -> str:
         """A click in the 3D view (world-frame ray): a grasp's hand in front of the segments
-        selects that grasp, a segment is completed. Returns what happened: ``"grasp"``,
-        ``"segment"`` or ``"nothing"``."""
+        selects that grasp, a segment is chosen (:meth:`choose_segment`: completed, or brought back
+        when it was completed earlier). Returns what happened: ``"grasp"``, ``"segment"`` or
+        ``"nothing"``."""
         k, t_hand = self.grasps.pick(ray_origin, ray_direction)
         sid, t_segment = self.pick_hit(ray_origin, ray_direction)
         if k is not None and t_hand <= t_segment:
@@ -213,7 +217,7 @@ class Session:
                 client, "No segment there", "Click on a coloured segment, or on a grasp's hand.", auto_close=3.0
             )
             return "nothing"
-        self.complete(sid, client)
+        self.choose_segment(sid, client)
         return "segment"
 
     def segment_centroid_world(self, segment_id: int) -> np.ndarray:
@@ -221,8 +225,16 @@ class Session:
         assert self.scene is not None  # set in __init__ (which fails without a scene)
         return self.scene.points_world[segment_id].mean(axis=0)
 
+    def choose_segment(self, segment_id: int, client: viser.ClientHandle | None = None) -> Completion | None:
+        """Select a segment (the Segment dropdown, a click in 3D). One completed earlier comes back
+        as it was made, drawn, without computing anything: its completion and sample completions,
+        the detailed mesh, baselines and envelope made of it, its grasps. Any other is
+        fast-completed (:meth:`complete`). Returns its completion, or None (the client is told why)."""
+        return self.completing.choose(segment_id, client)
+
     def complete(self, segment_id: int, client: viser.ClientHandle | None = None) -> Completion | None:
-        """Fast-complete one segment and draw its CNN input, CNN output and fast mesh.
+        """Fast-complete one segment (anew, when it was completed before: the meshes made of its
+        earlier completion are dropped) and draw its CNN input, CNN output and fast mesh.
 
         Returns the completion, or None when the segment cannot be completed or another job is
         running (the client is told why).
@@ -370,12 +382,12 @@ def wire_callbacks(app: Session) -> None:
     @p.segment.on_update
     def _(event: viser.GuiEvent) -> None:
         sid = app.segment_options.get(p.segment.value)
-        if event.client is None or sid == app.selected:
-            return  # set by the app itself, or no change
+        if sid == app.selected:
+            return  # no change (the app selects before it sets the dropdown)
         if sid is None:
             app.selected = None
         else:
-            app.complete(sid, event.client)
+            app.choose_segment(sid, event.client)
 
     @p.complete.on_click
     def _(event: viser.GuiEvent) -> None:
@@ -401,7 +413,8 @@ def wire_callbacks(app: Session) -> None:
 
     @p.upload.on_upload
     def _(event: viser.GuiEvent) -> None:
-        file = p.upload.value
+        file = take_upload(p.upload)  # the button lets go of the bytes once they are read
+        app.audience.end_upload_notice(event.client)  # viser's "uploaded successfully": the load says what happened
         app.load_upload(file.name, file.content, event.client)
 
     if p.load_cloud is not None and p.cloud_path is not None:
@@ -428,8 +441,12 @@ def wire_callbacks(app: Session) -> None:
 
     @p.sample.on_update
     def _(event: viser.GuiEvent) -> None:
-        if event.client is not None:  # moved by the user, not reset by the app
-            app.show_sample(int(p.sample.value), event.client)
+        if event.client is None:
+            return  # reset by the app, not moved by the user
+        k = int(np.clip(p.sample.value, 0, P.N_SAMPLES))  # a typed number may lie outside 0..8
+        if k != p.sample.value:
+            set_value(p.sample, k)
+        app.show_sample(k, event.client)
 
     @p.cloud_colors.on_update
     def _(_event: viser.GuiEvent) -> None:

@@ -8,6 +8,7 @@ Points of the captures they return are camera optical frame, metres (:mod:`shape
 from __future__ import annotations
 
 import logging
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -22,9 +23,59 @@ UPLOAD_SUFFIXES = (*CLOUD_SUFFIXES, *DEPTH_SUFFIXES)
 MAX_DATA_FILES = 200
 
 
+# Longest upload name shown (characters, after escaping): a name is a label, not a message.
+MAX_NAME_CHARS = 120
+# ASCII punctuation left as it is in markdown: these never start markup inside a line.
+_MARKDOWN_PLAIN = frozenset(".,-/'\"=%;?")
+_WORD = re.compile(r"\w")
+_JOINER = "\u2060"  # WORD JOINER: invisible, no line break; splits what markdown would make a link
+
+
+def one_line(text: str) -> str:
+    """``text`` as one printable line: each character that is not printable escaped the way
+    ``repr`` escapes it (``\\n``, ``\\x1b``, ``\\u202e``). Safe in a log line, where a newline
+    in a name would forge a line of its own; a text already on one line comes back as it was."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def upload_name(name: str) -> str:
-    """The base name of a browser's file name (never a client path; Windows separators too)."""
-    return Path(name.replace("\\", "/")).name or "upload"
+    """The name an upload is shown and logged by: the base name of the browser's file name (never a
+    client path; Windows separators too), on one line (:func:`one_line`), at most
+    :data:`MAX_NAME_CHARS` long."""
+    base = Path(str(name).replace("\\", "/")).name or "upload"
+    shown = one_line(base)
+    if len(shown) > MAX_NAME_CHARS:
+        keep = MAX_NAME_CHARS - 1 - len(Path(shown).suffix)
+        shown = shown[: max(keep, 1)] + "…" + Path(shown).suffix
+    return shown
+
+
+def markdown_text(text: str) -> str:
+    """``text`` (a name from a browser or a file) as literal markdown: on one line, every character
+    that could start markup or raw HTML backslash-escaped, so that ``<img src=x>``, ``[a](x)`` or
+    ``**`` show as typed. Underscores inside a word and plain punctuation stay as they are
+    (``ycb/025_mug.pcd`` reads the same in the source and on screen).
+
+    GitHub-flavoured markdown also turns ``www.``, ``http://`` and ``a@b.c`` in plain text into
+    links, after the escapes are gone: an invisible word joiner (U+2060) before ``:``, ``@`` and a
+    ``.`` after ``www`` keeps them text."""
+    line = one_line(text)
+    out = []
+    for i, c in enumerate(line):
+        if c == "_":
+            inside = 0 < i < len(line) - 1 and _WORD.match(line[i - 1]) and _WORD.match(line[i + 1])
+            out.append(c if inside else "\\_")
+        elif c == "." and line[max(i - 3, 0) : i].lower() == "www":
+            out.append(_JOINER + c)
+        elif c in ":@":
+            out.append(_JOINER + "\\" + c)
+        elif c.isascii() and not c.isalnum() and not c.isspace() and c not in _MARKDOWN_PLAIN:
+            out.append("\\" + c)
+        else:
+            out.append(c)
+    return "".join(out)
 
 
 def upload_problem(shown: str, size: int, max_bytes: int) -> str | None:

@@ -113,7 +113,11 @@ def load_scene(capture: Capture, require_segment: bool = False) -> LoadedScene:
     seg_seconds = time.perf_counter() - t0
     if require_segment and not any(usable(s) for s in seg.segments):
         found = (
-            f"none of its {len(seg.segments)} segments is large enough to complete"
+            (
+                "its only segment is too small to complete"
+                if len(seg.segments) == 1
+                else f"none of its {len(seg.segments)} segments is large enough to complete"
+            )
             if seg.segments
             else f"no segments found among its {int(capture.valid_mask().sum()):,} valid points"
         )

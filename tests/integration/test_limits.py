@@ -102,13 +102,13 @@ def test_files_over_the_limit_are_refused_unread(tmp_path: Path, monkeypatch) ->
 @pytest.mark.slow
 def test_segmentation_clusters_a_bounded_number_of_voxels(monkeypatch) -> None:
     sizes: list[int] = []
-    clusters = segment_module._euclidean_clusters
+    pairs = segment_module._close_pairs  # every clustering of voxels starts with their close pairs
 
     def spy(points, tolerance):
         sizes.append(len(points))
-        return clusters(points, tolerance)
+        return pairs(points, tolerance)
 
-    monkeypatch.setattr(segment_module, "_euclidean_clusters", spy)
+    monkeypatch.setattr(segment_module, "_close_pairs", spy)
     # 300k random points in a 1 m cube: about 260k occupied 1 cm voxels, no table.
     cloud = np.random.default_rng(3).uniform([-0.5, -0.5, 0.5], [0.5, 0.5, 1.5], (300_000, 3))
     assert segment_scene(cloud).segments == []

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import shapeviewer
+from shapeviewer.errors import Cancelled
 from shapeviewer.evaluation import records as rec
 from shapeviewer.evaluation import run as ev
 from shapeviewer.grasp import pick as P
@@ -91,7 +92,7 @@ def test_rank_grasps_needs_an_envelope_to_widen_and_stops_when_cancelled(milk):
     mesh = pick.mesh_world
     with pytest.raises(ValueError, match="envelope"):
         P.rank_grasps(mesh, [mesh], hand="panda", planned=pick.grasps[:1])
-    with pytest.raises(P.PickCancelled):
+    with pytest.raises(Cancelled):
         P.rank_grasps(mesh, [mesh], hand="panda", planned=pick.grasps[:1], widen=False, cancel=lambda: True)
     with pytest.raises(ValueError, match="barrett"):
         P.rank_grasps(mesh, [mesh], hand="barrett", planned=pick.grasps[:1], widen=False)

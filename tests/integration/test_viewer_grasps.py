@@ -380,8 +380,18 @@ def test_real_capture_has_no_ground_truth(real_data):
             assert node(app, f"/grasps/seg_{sid}/g{k}") is not None
         assert "No ground truth" in app.grasps.panel.info.content
         app.last_error = None
+        shown: list[tuple[str, str, str | None]] = []
+        notify = app.audience.notify  # where every notice of the session goes
+
+        def keep(client, title, body, color=None, auto_close=8.0):
+            shown.append((title, body, color))
+            notify(client, title, body, color, auto_close)
+
+        app.audience.notify = keep  # type: ignore[method-assign]
         assert app.execute_grasps(sid, [0] if s.grasps else None) is None
-        assert "No ground truth" in app.last_error and "real capture" in app.last_error
+        # Said as information (nothing failed), not as an error.
+        [(title, body, color)] = [n for n in shown if "No ground truth" in n[0] + n[1]]
+        assert "real capture" in title + body and color != "red" and app.last_error is None
         assert node(app, f"/grasps/seg_{sid}/truth") is None
 
 

@@ -57,10 +57,16 @@ def test_every_exception_class_derives_from_shapeviewer_error():
 
 
 def test_cancellation_is_one_class():
-    from shapeviewer.grasp.robust import RobustnessCancelled
-    from shapeviewer.runtime.processes import JobCancelled
+    """Every long job stops with the one Cancelled: no other cancellation class or alias exists."""
+    import shapeviewer.grasp.pick
+    import shapeviewer.grasp.robust
+    import shapeviewer.runtime.processes
+    import shapeviewer.viewer.dataset.work
 
-    assert RobustnessCancelled is Cancelled and JobCancelled is Cancelled and issubclass(Cancelled, ShapeviewerError)
+    for module in (shapeviewer.grasp.pick, shapeviewer.grasp.robust, shapeviewer.runtime.processes):
+        names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Cancelled)]
+        assert names in ([], ["Cancelled"]), f"{module.__name__} has cancellation classes {names}"
+    assert issubclass(Cancelled, ShapeviewerError)
 
 
 def test_package_errors_keep_their_builtin_base():

@@ -14,7 +14,12 @@ A session's 3D scene is shared by its two tabs (and the browser does not report 
 the dataset is drawn under its own root frame ``/dataset`` that is only visible while the dataset is
 *shown*; showing it hides the pipeline's nodes and restores them afterwards (the app's
 ``set_pipeline_visible``). Selecting a view shows the dataset; "Back to the pipeline" and "Open in
-pipeline" return.
+pipeline" return. Until a view is selected nothing is chosen (the Object dropdown reads "(choose an
+object)"), so the tab never names a view that the 3D scene does not show; "Open in pipeline" leaves
+the dataset on screen while the capture loads and then brings the Pipeline tab to the front.
+
+Every dropdown value a browser sends is checked against the dropdown's entries (a forged one is
+refused with a notice); names from the store are escaped wherever they are shown as markdown.
 
 One module per job: :mod:`.layout` (where things go, plain numpy), :mod:`.summary` (labels,
 tables, the chart), :mod:`.controls` (the GUI), :mod:`.drawing` (scene nodes and cameras),

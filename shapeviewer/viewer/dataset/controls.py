@@ -4,16 +4,22 @@ kept in step with the tab, and the wiring of every control to the tab's actions.
 viser runs GUI callbacks in a thread pool, and setting a dropdown from the server fires its
 callback too: :meth:`DatasetControls.quiet` marks the tab's own changes, so that the callbacks
 only act on the user's.
+
+viser takes whatever value a browser sends for a dropdown, an entry of it or not. Every choice is
+checked against its entries on the server (:meth:`DatasetControls.accept`): an unknown one is
+answered with a notice and the control goes back to its last valid value, which is also what
+:meth:`DatasetControls.choice` reads meanwhile, so the index never filters by it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import math
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, TypedDict, cast
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, cast
 
 import numpy as np
 import viser
@@ -23,11 +29,11 @@ from ...evaluation.records import KINDS, Metric
 from ...evaluation.results import Order
 from ...evaluation.viewsets import Split
 from ...export import MESH_FORMATS
-from ..gui import set_value
+from ..gui import ProgressBar, set_value
+from ..sources import one_line
 
 if TYPE_CHECKING:
-    # Not exported by viser: what add_progress_bar returns, and add_command's hotkey and modifier.
-    from viser._gui_handles import GuiProgressBarHandle
+    # Not exported by viser: add_command's hotkey and modifier (literal types).
     from viser._messages import HotkeyKey, KeyModifier
 
 SPLITS: dict[str, Split | None] = {"all objects": None, "training models": "train", "holdout models": "holdout_model"}
@@ -46,7 +52,12 @@ HOTKEYS: tuple[tuple[str, HotkeyKey, KeyModifier | None, str, int], ...] = (
     ("Next object", "N", "shift", "object", 1),
     ("Previous object", "P", "shift", "object", -1),
 )
-NO_OBJECT = "(no object)"
+NO_OBJECT = "(no object)"  # the Object dropdown's only entry when the index is empty
+# The Object dropdown's first entry while no view is shown: nothing is chosen, so choosing any
+# object (the first one too) shows its first view.
+CHOOSE_OBJECT = "(choose an object)"
+# The longest forged value a notice quotes (characters).
+QUOTE_CHARS = 60
 
 
 class IndexFilters(TypedDict):
@@ -86,6 +97,10 @@ class DatasetActions(Protocol):
     def refresh_index(self) -> None: ...
 
 
+# (client, title, body, color): tell a browser something (:meth:`~..audience.Audience.notify`).
+Notify = Callable[..., None]
+
+
 @dataclass
 class DatasetControls:
     """Handles of the tab's controls, and the dropdown state behind them.
@@ -94,7 +109,7 @@ class DatasetControls:
     """
 
     status: viser.GuiMarkdownHandle
-    progress: GuiProgressBarHandle
+    progress: ProgressBar
     show: viser.GuiButtonHandle
     search: viser.GuiTextHandle
     split: viser.GuiDropdownHandle
@@ -129,6 +144,83 @@ class DatasetControls:
     view_options: dict[str, int] = field(default_factory=dict)
     updating: bool = False  # True while the tab itself sets controls
     _lock: threading.RLock = field(default_factory=threading.RLock)
+    # id(handle) -> its last valid value, for every choice a browser makes (see accept()).
+    _valid: dict[int, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for handle in self.choices:
+            self._valid[id(handle)] = handle.value
+        self._valid[id(self.range)] = self.range.value
+
+    @property
+    def choices(self) -> tuple[viser.GuiDropdownHandle, ...]:
+        """The dropdowns whose value must be one of their entries."""
+        return (
+            self.split,
+            self.method,
+            self.metric,
+            self.order,
+            self.object,
+            self.view,
+            self.export_kind,
+            self.export_format,
+            self.export_frame,
+        )
+
+    def choice(self, handle: viser.GuiDropdownHandle) -> str:
+        """``handle``'s value when it is one of its entries, else its last valid value (a forged
+        value that :meth:`accept` has not yet put back)."""
+        value = handle.value
+        return value if value in handle.options else self._valid.get(id(handle), handle.options[0])
+
+    def range_value(self) -> tuple[float, float]:
+        """The Range slider's ``(low, high)`` when it is a valid range of the slider, else its last valid value."""
+        value = self.range.value
+        return value if self._range_ok(value) else self._valid.get(id(self.range), (self.range.min, self.range.max))
+
+    def _range_ok(self, value: Any) -> bool:
+        try:
+            lo, hi = (float(x) for x in value)
+        except (TypeError, ValueError):
+            return False
+        return math.isfinite(lo) and math.isfinite(hi) and self.range.min <= lo <= hi <= self.range.max
+
+    def accept(self, handle: Any, client: viser.ClientHandle | None, notify: Notify) -> bool:
+        """Whether ``handle``'s new value is valid (one of its entries; for the Range slider, a range
+        within it). A valid value becomes the one to fall back to; an invalid one is put back to the
+        last valid value, and ``client`` is told. Returns False also when the value did not change
+        from the last valid one (the tab putting a value back): nothing to act on."""
+        value = handle.value
+        if handle is self.range:
+            ok = self._range_ok(value)
+        elif isinstance(handle, viser.GuiButtonGroupHandle):
+            return value in handle.options or self._refuse(handle, value, None, client, notify)
+        else:
+            ok = value in handle.options
+        key = id(handle)
+        if not ok:
+            previous = self._valid.get(key)
+            with self.quiet():
+                if previous is not None:
+                    set_value(handle, previous)
+            return self._refuse(handle, value, previous, client, notify)
+        if key in self._valid and self._valid[key] == value:
+            return False
+        self._valid[key] = value
+        return True
+
+    def _refuse(self, handle: Any, value: Any, kept: Any, client: viser.ClientHandle | None, notify: Notify) -> bool:
+        quoted = one_line(repr(value))
+        if len(quoted) > QUOTE_CHARS:
+            quoted = quoted[: QUOTE_CHARS - 1] + "…"
+        kept_text = "" if kept is None else f"; it stays at {one_line(str(kept))}"
+        notify(
+            client,
+            "Unknown choice",
+            f"{handle.label}: {quoted} is not one of its entries{kept_text}.",
+            "red",  # the browser sent what the page never offers
+        )
+        return False
 
     @property
     def downloads(self) -> tuple[tuple[viser.GuiButtonHandle, str], ...]:
@@ -144,14 +236,14 @@ class DatasetControls:
 
     def filters(self) -> IndexFilters:
         """The index filters, as keyword arguments of :meth:`ResultsStore.objects`."""
-        lo, hi = self.range.value
+        lo, hi = self.range_value()
         return {
-            "search": self.search.value,
-            "split": SPLITS[self.split.value],
-            "with_results": self.with_results.value,
-            "method": cast(Method, self.method.value),
-            "metric": cast(Metric, self.metric.value),
-            "order": ORDERS[self.order.value],
+            "search": str(self.search.value),
+            "split": SPLITS[self.choice(self.split)],
+            "with_results": bool(self.with_results.value),
+            "method": cast(Method, self.choice(self.method)),
+            "metric": cast(Metric, self.choice(self.metric)),
+            "order": ORDERS[self.choice(self.order)],
             "metric_range": (float(lo), float(hi)) if self.limit.value else None,
         }
 
@@ -169,10 +261,12 @@ class DatasetControls:
         self, object_options: dict[str, str], selected: str | None, view_options: dict[str, int], view: int | None
     ) -> None:
         """Fill the Object and View dropdowns (entry -> object name / view number) and show the
-        ``selected`` object's ``view`` (None: the first entry / no view)."""
+        ``selected`` object's ``view`` (None: nothing chosen, :data:`CHOOSE_OBJECT` / no view)."""
         with self.quiet():
             self.object_options = object_options
             options = tuple(object_options) or (NO_OBJECT,)
+            if selected is None and object_options:
+                options = (CHOOSE_OBJECT, *options)
             self.object.options = options
             set_value(self.object, next((k for k, v in object_options.items() if v == selected), options[0]))
             self.view_options = view_options
@@ -205,39 +299,55 @@ class DatasetControls:
             self.bars_image.image = image
             self.bars_image.visible = True
 
-    def wire(self, gui: viser.GuiApi, tab: DatasetActions) -> None:
-        """Connect every control (and the N / P hotkeys) to ``tab``."""
-        for h in (self.search, self.split, self.with_results, self.method, self.order):
-            h.on_update(lambda _e: tab.refresh_index())
+    def wire(self, gui: viser.GuiApi, tab: DatasetActions, notify: Notify) -> None:
+        """Connect every control (and the N / P hotkeys) to ``tab``; ``notify`` answers a value that
+        is none of a control's entries (see :meth:`accept`)."""
 
-        @self.metric.on_update
-        def _(_e) -> None:
-            lo, hi, st = SLIDER[self.metric.value]
+        def checked(handle: Any, act: Callable[[viser.GuiEvent], None]) -> None:
+            def update(event: viser.GuiEvent) -> None:
+                if self.accept(handle, event.client, notify):
+                    act(event)
+
+            handle.on_update(update)
+
+        self.search.on_update(lambda _e: tab.refresh_index())
+        self.with_results.on_update(lambda _e: tab.refresh_index())
+        for dropdown in (self.split, self.method, self.order):
+            checked(dropdown, lambda _e: tab.refresh_index())
+        for dropdown in (self.export_kind, self.export_format, self.export_frame):
+            checked(dropdown, lambda _e: None)  # read when an export is asked for
+
+        def metric(_e: viser.GuiEvent) -> None:
+            lo, hi, st = SLIDER[cast(Metric, self.choice(self.metric))]
             with self.quiet():
                 self.range.min, self.range.max, self.range.step = lo, hi, st
                 set_value(self.range, (lo, hi))
+                self._valid[id(self.range)] = (lo, hi)
             tab.refresh_index()
+
+        checked(self.metric, metric)
 
         @self.limit.on_update
         def _(_e) -> None:
             self.range.disabled = not self.limit.value
             tab.refresh_index()
 
-        @self.range.on_update
-        def _(_e) -> None:
+        def slider(_e: viser.GuiEvent) -> None:
             if not self.updating and self.limit.value:
                 tab.refresh_index()
 
-        @self.object.on_update
-        def _(event: viser.GuiEvent) -> None:
+        checked(self.range, slider)
+
+        def choose_object(event: viser.GuiEvent) -> None:
             if self.updating or event.client is None:
                 return
             name, shown = self.object_options.get(self.object.value), tab.shown_view()
             if name and (shown is None or shown[0] != name):
                 tab.select(name, None, event.client)
 
-        @self.view.on_update
-        def _(event: viser.GuiEvent) -> None:
+        checked(self.object, choose_object)
+
+        def choose_view(event: viser.GuiEvent) -> None:
             shown = tab.shown_view()
             if self.updating or event.client is None or shown is None:
                 return
@@ -245,9 +355,12 @@ class DatasetControls:
             if v is not None and v != shown[1]:
                 tab.select(shown[0], v, event.client)
 
+        checked(self.view, choose_view)
+
         @self.step.on_click
         def _(event: viser.GuiEvent) -> None:
-            tab.step(*STEPS[self.step.value], event.client)
+            if self.accept(self.step, event.client, notify):
+                tab.step(*STEPS[self.step.value], event.client)
 
         self.show.on_click(lambda event: tab.leave(event.client) if tab.active else tab.show(event.client))
         self.pipeline_note.on_click(lambda event: tab.leave(event.client))

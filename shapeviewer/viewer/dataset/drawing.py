@@ -37,6 +37,9 @@ PLANNED_HAND = ((70, 140, 255), 0.3)  # colour, opacity: the completion stays vi
 EXECUTED_HAND = ((250, 90, 60), 0.5)
 # A hand to draw: node name, display-frame vertices (float32, metres), faces, colour, opacity.
 HandMesh = tuple[str, np.ndarray, np.ndarray, tuple[int, int, int], float]
+# A hand of a column before the layout: its column (method), then as HandMesh with the vertices
+# in the view's camera frame (float64, metres).
+ColumnHand = tuple[str, str, np.ndarray, np.ndarray, tuple[int, int, int], float]
 
 
 def points_colors(depth: np.ndarray) -> np.ndarray:
@@ -94,16 +97,17 @@ class DisplayMeshes:
 
 
 def best_grasp_hands(
-    store: ResultsStore, info: ViewInfo, grasps: list[GraspSummary], layout: ViewLayout
-) -> list[HandMesh]:
+    store: ResultsStore, info: ViewInfo, grasps: list[GraspSummary], kinds: tuple[str, ...]
+) -> list[ColumnHand]:
     """The hands of each completion's best planned grasp (blue) and of its execution on the true
-    object (red), in their columns. A grasp file that cannot be read is skipped with a warning:
-    the labels still show its summary."""
+    object (red), for the columns ``kinds``, in the view's camera frame (the layout makes room
+    for them, :func:`place_hands` puts them in their columns). A grasp file that cannot be read
+    is skipped with a warning: the labels still show its summary."""
     from ...grasp.hands import get_hand, hand_mesh
 
     hands = []
     for g in grasps:
-        if not g.file or g.method not in layout.T_display_cam:
+        if not g.file or g.method not in kinds:
             continue
         try:
             gs = store.grasp_set(info.object, info.view, g.method, g.hand)
@@ -118,7 +122,7 @@ def best_grasp_hands(
             continue
         # Grasp files are in a "world" frame; the evaluation records its camera pose there.
         T_world_cam = np.asarray(gs.meta.get("T_world_cam", np.eye(4)), dtype=np.float64)
-        T_disp_world = layout.T_display_cam[g.method] @ np.linalg.inv(T_world_cam)
+        T_cam_world = np.linalg.inv(T_world_cam)
         best = max(range(first), key=lambda i: gs.grasps[i].epsilon)
         hand = get_hand(gs.grasps[best].hand)
         states = [("planned", gs.grasps[best], PLANNED_HAND)]
@@ -126,17 +130,34 @@ def best_grasp_hands(
             states.append(("executed", gs.executions[best], EXECUTED_HAND))
         for tag, state, (color, opacity) in states:
             mesh = hand_mesh(hand, [state.joints[n] for n in hand.joint_names])
-            T = T_disp_world @ np.asarray(state.T_world_palm)
+            T = T_cam_world @ np.asarray(state.T_world_palm)
             hands.append(
                 (
+                    g.method,
                     f"{ROOT}/grasp_{g.method}_{tag}",
-                    transform_points(T, mesh.vertices).astype(np.float32),
+                    transform_points(T, mesh.vertices),
                     np.asarray(mesh.faces, np.int32),
                     color,
                     opacity,
                 )
             )
     return hands
+
+
+def place_hands(hands: list[ColumnHand], layout: ViewLayout) -> list[HandMesh]:
+    """:func:`best_grasp_hands` moved into their columns (display frame)."""
+    return [
+        (name, transform_points(layout.T_display_cam[kind], verts).astype(np.float32), faces, color, opacity)
+        for kind, name, verts, faces, color, opacity in hands
+    ]
+
+
+def hand_extents(hands: list[ColumnHand]) -> dict[str, np.ndarray]:
+    """Column -> the camera-frame vertices of its hands (for :func:`~.layout.layout_view`)."""
+    out: dict[str, list[np.ndarray]] = {}
+    for kind, _name, verts, *_ in hands:
+        out.setdefault(kind, []).append(verts)
+    return {kind: np.concatenate(v) for kind, v in out.items()}
 
 
 class DatasetScene:

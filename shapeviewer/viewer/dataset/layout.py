@@ -16,6 +16,9 @@ from ...perception.camera import transform_points
 
 # Column spacing / largest object footprint: room for the labels between the items.
 SPACING_FACTOR = 1.3
+# Column spacing / the widest reach of two neighbouring columns along the row (items and the hands
+# drawn with them): a gap between whatever stands in one column and in the next.
+REACH_FACTOR = 1.15
 # The browser camera: a narrow field of view from farther away keeps the perspective nearly the
 # same for every column, so the items can be compared side by side.
 DATASET_FOV = math.radians(30.0)
@@ -63,6 +66,8 @@ def layout_view(
     kinds: tuple[str, ...],
     aspect: float = DEFAULT_ASPECT,
     fov: float = DATASET_FOV,
+    *,
+    extras_cam: dict[str, np.ndarray] | None = None,
 ) -> ViewLayout:
     """Lay out a view's items in one row, the unseen side towards the camera.
 
@@ -72,6 +77,9 @@ def layout_view(
         extents_cam: kind -> (M, 3) vertices (camera frame) of each item, for the column width.
         kinds: the items left to right.
         aspect, fov: the browser camera's aspect ratio and vertical field of view (radians).
+        extras_cam: kind -> (K, 3) vertices (camera frame) of what is drawn with that item in its
+            column (the hands of its best grasp): the columns are spaced so that none of it reaches
+            into the next column, and the labels go above it.
     """
     T_obj_cam = np.linalg.inv(np.asarray(T_cam_obj, dtype=np.float64))
     sensor_obj = T_obj_cam[:3, 3]
@@ -94,6 +102,20 @@ def layout_view(
             # A failed completion can be huge; it may overlap its neighbours rather than shrink the row.
             widths.append(min(float(np.linalg.norm(p[:, :2].max(0) - p[:, :2].min(0))), 1.6 * truth_width))
     spacing = SPACING_FACTOR * max([truth_width, *widths, 0.05])
+    if extras_cam:
+        # How far each column's contents reach left and right of its centre line (x, display frame).
+        # An item reaches at most as far as the width cap above lets it; hands as far as they do.
+        reach: dict[str, tuple[float, float]] = {}
+        for kind in kinds:
+            left = right = 0.0
+            parts = ((extents_cam.get(kind), 0.8 * truth_width), (extras_cam.get(kind), math.inf))
+            for part, cap in parts:
+                if part is not None and len(part):
+                    x = transform_points(T_common, part)[:, 0]
+                    left, right = max(left, min(-float(x.min()), cap)), max(right, min(float(x.max()), cap))
+            reach[kind] = (left, right)
+        pairs = [reach[a][1] + reach[b][0] for a, b in zip(kinds, kinds[1:])]
+        spacing = max([spacing, *(REACH_FACTOR * p for p in pairs)])
     n = len(kinds)
     T_display_cam, columns = {}, {}
     for i, kind in enumerate(kinds):
@@ -103,6 +125,9 @@ def layout_view(
         columns[kind] = np.array([(i - (n - 1) / 2) * spacing, 0.0, 0.0])
     tops = [float(transform_points(T_common, p)[:, 2].max()) for p in extents_cam.values() if len(p)]
     top = max([float(hi[2] - lo[2]), *[min(t, 2.0 * (hi[2] - lo[2])) for t in tops]])
+    for p in (extras_cam or {}).values():
+        if len(p):
+            top = max(top, float(transform_points(T_common, p)[:, 2].max()))
     # Fit the row (and the labels above it) in view: half-width over tan(horizontal half-fov).
     half_w = 0.5 * n * spacing * 1.04
     half_h = 0.5 * (top + 0.9 * spacing) * 1.1

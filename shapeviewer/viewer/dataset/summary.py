@@ -3,6 +3,12 @@
 Plain values in (records of :mod:`shapeviewer.evaluation.results`), markdown or PNG bytes out; no
 viser, so tests can call every function without a server. Distances are millimetres where a name
 says ``mm``, sizes centimetres in the tables (the records keep metres).
+
+Names that come from the store's files (objects, sources, error messages) are escaped
+(:func:`~shapeviewer.viewer.sources.markdown_text`): they show as written and never as markup.
+viser draws a markdown table's cells without padding, so each table sits in a block styled by
+:data:`TABLE_STYLE` (:func:`table_block`): padded cells, figures kept on one line, long object
+names wrapped, the table scrolling sideways rather than cut off in a narrow panel.
 """
 
 from __future__ import annotations
@@ -16,8 +22,9 @@ from ...evaluation.methods import GRASP_TABLE_METHODS, METHOD_INFO, METHODS, Met
 from ...evaluation.paper import paper_figure, paper_grasp
 from ...evaluation.records import HIGHER_IS_BETTER, METRIC_TITLES, Metric
 from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummary, ViewInfo
-from ...evaluation.tables import fmt, fmt_metric, fmt_share
+from ...evaluation.tables import fmt, fmt_share
 from ...evaluation.viewsets import SET_TITLES, VIEW_SETS, ViewSet
+from ..sources import markdown_text
 
 # A column's title: the truth, the partial view, each method's (:data:`~shapeviewer.evaluation.methods.METHOD_INFO`).
 TITLES: dict[str, str] = {
@@ -41,6 +48,29 @@ PRIORS = {
     "box": ("fitted box", "the box fitted to the points"),
     "revolution": ("revolved", "revolved about the table's normal"),
 }
+# The look of the tables (class :data:`TABLE_CLASS`): viser's markdown puts a table's cells in bare
+# <td>s, without padding, so "1.9 | 100%" would read "1.9100%". Sizes in CSS px.
+# Figures stay on one line; a row's first cell may wrap between words ("table h." / "model"), an
+# object's name (class NAMES_CLASS) anywhere; a folder path (class PATH_CLASS) wraps too.
+TABLE_CLASS = "sv-table"
+NAMES_CLASS = "sv-names"
+COMPACT_CLASS = "sv-compact"  # the summary's tables of seven columns
+PATH_CLASS = "sv-path"
+TABLE_STYLE = (
+    "<style>"
+    f".{TABLE_CLASS}{{overflow-x:auto;max-width:100%;margin:0.25em 0 0.5em}}"
+    f".{TABLE_CLASS} table{{border-collapse:collapse;font-size:12px;line-height:1.35}}"
+    f".{TABLE_CLASS} th,.{TABLE_CLASS} td{{padding:2px 4px;white-space:nowrap;vertical-align:top}}"
+    f".{TABLE_CLASS} th{{font-weight:600;text-align:left;border-bottom:1px solid rgba(128,128,128,0.45)}}"
+    f".{TABLE_CLASS} td:first-child,.{TABLE_CLASS} th:first-child{{padding-left:0}}"
+    f".{TABLE_CLASS} td:first-child{{white-space:normal}}"
+    f".{NAMES_CLASS} td:first-child{{overflow-wrap:anywhere}}"
+    f".{COMPACT_CLASS} table{{font-size:11px}}"
+    f".{COMPACT_CLASS} th,.{COMPACT_CLASS} td{{padding:2px 3px}}"
+    f".{TABLE_CLASS} tr:nth-child(even) td{{background:rgba(128,128,128,0.08)}}"
+    f"code.{PATH_CLASS}{{white-space:normal;overflow-wrap:anywhere}}"
+    "</style>"
+)
 INDEX_ROWS = 12  # rows of the index table in the panel
 BARS_OBJECTS = 25  # objects in the per-object chart
 # Short column titles for the narrow panel.
@@ -57,6 +87,31 @@ SHORT_SET: dict[ViewSet, str] = {
     "tabletop_train_object": "table",
     "tabletop_holdout_model": "table h. model",
 }
+
+
+def table_block(rows: list[str], names: bool = False, compact: bool = False) -> list[str]:
+    """Markdown lines of a table (``rows``: its header, alignment and body lines) in a block of
+    class :data:`TABLE_CLASS` (and :data:`NAMES_CLASS` when its first column holds object names,
+    :data:`COMPACT_CLASS` for a smaller type), blank lines around it (markdown inside an HTML
+    block needs them)."""
+    classes = " ".join([TABLE_CLASS, *([NAMES_CLASS] if names else []), *([COMPACT_CLASS] if compact else [])])
+    return ["", f'<div class="{classes}">', "", *rows, "", "</div>", ""]
+
+
+def path_markdown(path: str) -> str:
+    """A folder path in code style that wraps in the narrow panel (literal: escaped)."""
+    return f'<code class="{PATH_CLASS}">{markdown_text(path)}</code>'
+
+
+def panel_figure(v: float | None, metric: str) -> str:
+    """A mean in the side panel's tables: distances (mm) to 0.1, ratios to 0.01 (the downloaded
+    tables keep 0.001)."""
+    return fmt(v, 1 if metric.startswith("hausdorff") else 2)
+
+
+def styled(lines: list[str]) -> str:
+    """``lines`` joined into one markdown text, after the tables' style."""
+    return "\n".join([TABLE_STYLE, "", *lines])
 
 
 # Labels sit above their column, which is about 25 characters wide on a laptop screen: short lines.
@@ -112,7 +167,8 @@ def status_markdown(counts: dict[str, int], root: str, building: bool) -> str:
     """The tab's status line: what the store at ``root`` holds (``ResultsStore.counts``), unreadable
     files, and whether the sample store is being built."""
     text = (
-        f"**{counts['views']}** views of **{counts['objects']}** objects · {counts['grasps']} grasp results  \n`{root}`"
+        f"**{counts['views']}** views of **{counts['objects']}** objects · {counts['grasps']} grasp results  \n"
+        + path_markdown(root)
     )
     if not counts["views"] and not building:
         text += "  \nNo views yet: fill it with `shapeviewer evaluate --out DIR`."
@@ -120,7 +176,7 @@ def status_markdown(counts: dict[str, int], root: str, building: bool) -> str:
         text += f"  \n⚠ {counts['skipped']} unreadable view file(s) skipped"
     if building:
         text = "_Building the sample store..._  \n" + text
-    return text
+    return styled([text])
 
 
 def worst_first(objects: list[ObjectSummary], method: Method, metric: Metric) -> list[ObjectSummary]:
@@ -138,23 +194,24 @@ def worst_first(objects: list[ObjectSummary], method: Method, metric: Metric) ->
 def index_markdown(
     objects: list[ObjectSummary], method: Method, metric: Metric, selected: str | None, total: int
 ) -> str:
-    """The first rows of the filtered index as a markdown table (the selected object in bold)."""
+    """The first rows of the filtered index as a markdown table (the selected object in bold,
+    holdout models in italics: four columns fit the side panel)."""
     if not objects:
         return "_No object matches._"
     head = (
-        f"{len(objects)} of {total} objects · size = longest side · means of **{method}**  \n"
-        f"| object | split | cm | views | {SHORT.get(metric, metric[:4])} |\n|---|---|---:|:---:|---:|"
+        f"{len(objects)} of {total} objects · means of **{method}** · cm: longest side · n: views · "
+        "_italics_: holdout model"
     )
-    rows = []
+    rows = [f"| object | cm | n | {SHORT.get(metric, metric[:4])} |", "|---|---:|---:|---:|"]
     for o in objects[:INDEX_ROWS]:
-        name = f"**{o.name}**" if o.name == selected else o.name
-        split = "holdout" if o.split == "holdout_model" else "train"
+        name = markdown_text(o.name)
+        name = f"*{name}*" if o.split == "holdout_model" else name
+        name = f"**{name}**" if o.name == selected else name
         size = "?" if any(math.isnan(x) for x in o.extents) else f"{100 * max(o.extents):.0f}"
-        rows.append(
-            f"| {name} | {split} | {size} | {o.views} | {fmt(o.mean(method, metric), 1 if 'mm' in metric else 2)} |"
-        )
-    more = [f"| _… {len(objects) - INDEX_ROWS} more_ | | | | |"] if len(objects) > INDEX_ROWS else []
-    return "\n".join([head, *rows, *more])
+        rows.append(f"| {name} | {size} | {o.views} | {fmt(o.mean(method, metric), 1 if 'mm' in metric else 2)} |")
+    if len(objects) > INDEX_ROWS:
+        rows.append(f"| _… {len(objects) - INDEX_ROWS} more_ | | | |")
+    return styled([head, *table_block(rows, names=True)])
 
 
 def view_markdown(
@@ -162,50 +219,50 @@ def view_markdown(
 ) -> str:
     """The chosen view's object facts, per-method metrics table and grasp table."""
     size = " × ".join(f"{100 * x:.1f}" for x in o.extents) if not any(math.isnan(x) for x in o.extents) else "?"
+    view_set = markdown_text(SET_TITLES.get(info.view_set, info.view_set))
     lines = [
-        f"**{o.name}** · view {info.view} · {SET_TITLES.get(info.view_set, info.view_set)}  \n"
-        f"{o.source} · {'holdout model' if o.split == 'holdout_model' else 'training model'} · {size} cm",
-        "",
-        "| method | J ↑ | H mm ↓ | G ↓ | s |",
-        "|---|---:|---:|---:|---:|",
+        f"**{markdown_text(o.name)}** · view {info.view} · {view_set}  \n"
+        f"{markdown_text(o.source)} · {'holdout model' if o.split == 'holdout_model' else 'training model'} · "
+        f"{size} cm",
     ]
+    rows = ["| method | J ↑ | H mm ↓ | G ↓ | s |", "|---|---:|---:|---:|---:|"]
     for c in completions:
         if c.ok:
-            lines.append(
-                f"| {c.method} | {fmt(c.jaccard, 3)} | {fmt(c.hausdorff_mean_mm, 1)} | {fmt(c.geodesic, 3)} | "
-                f"{fmt(c.seconds, 2)} |"
+            rows.append(
+                f"| {markdown_text(c.method)} | {fmt(c.jaccard, 3)} | {fmt(c.hausdorff_mean_mm, 1)} | "
+                f"{fmt(c.geodesic, 3)} | {fmt(c.seconds, 2)} |"
             )
         else:
-            lines.append(f"| {c.method} | failed | | | |")
-    failed = [f"{c.method}: {c.error}" for c in completions if not c.ok]
+            rows.append(f"| {markdown_text(c.method)} | failed | | | |")
+    lines += table_block(rows)
+    failed = [f"{markdown_text(c.method)}: {markdown_text(c.error)}" for c in completions if not c.ok]
     if failed:
-        lines += ["", *(f"_{e}_  " for e in failed)]
+        lines += [*(f"_{e}_  " for e in failed)]
     priors = sorted({c.prior for c in completions if c.ok and c.prior})
     if priors:
-        what = "; ".join(PRIORS[p][1] if p in PRIORS else p for p in priors)
+        what = "; ".join(PRIORS[p][1] if p in PRIORS else markdown_text(p) for p in priors)
         lines += ["", f"Ours: {what} (a shape prior of the pipeline)"]
     if grasps:
         hands = sorted({g.hand for g in grasps})
         lines += [
             "",
-            f"**Grasps** ({', '.join(hands)}): planned on the completion, executed on the truth; "
+            f"**Grasps** ({markdown_text(', '.join(hands))}): planned on the completion, executed on the truth; "
             "errors planned vs executed, share lifted",
-            "",
-            "| on | n | joint° | mm | lift |",
-            "|---|---:|---:|---:|---:|",
         ]
+        rows = ["| on | n | joint° | mm | lift |", "|---|---:|---:|---:|---:|"]
         for g in grasps:
-            on = SHORT.get(g.method, g.method) + (f" ({g.hand})" if len(hands) > 1 else "")
+            on = markdown_text(SHORT.get(g.method, g.method) + (f" ({g.hand})" if len(hands) > 1 else ""))
             if g.error:
-                lines.append(f"| {on} | failed | | | |")
+                rows.append(f"| {on} | failed | | | |")
             else:
-                lines.append(
+                rows.append(
                     f"| {on} | {g.n} | {fmt(g.joint_error_deg, 1)} | {fmt(g.pose_error_mm, 1)} | "
                     f"{fmt_share(g.lift_success, 0)} |"
                 )
+        lines += table_block(rows)
     else:
         lines += ["", "_No grasp results for this view._"]
-    return "\n".join(lines)
+    return styled(lines)
 
 
 def bars_png(
@@ -282,42 +339,39 @@ def panel_markdown(summary: dict, grasps: dict) -> str:
         ("II", "hausdorff_mean_mm", "Hausdorff mean, mm ↓"),
         ("III", "geodesic", "Geodesic divergence ↓"),
     ):
-        out += [
-            f"**Table {number}: {title}**",
-            "",
+        rows = [
             "| set | " + " | ".join(SHORT[m] for m in METHODS) + " | paper |",
             "|---|" + "---:|" * (len(METHODS) + 1),
         ]
         for s in sets:
-            cells = [fmt_metric(summary[s][m][metric] if summary[s][m]["n"] else None, metric) for m in METHODS]
-            out.append(
+            cells = [panel_figure(summary[s][m][metric] if summary[s][m]["n"] else None, metric) for m in METHODS]
+            rows.append(
                 f"| {SHORT_SET[s]} | "
                 + " | ".join(cells)
-                + f" | {fmt_metric(paper_figure(metric, s, 'Ours-detailed'), metric)} |"
+                + f" | {panel_figure(paper_figure(metric, s, 'Ours-detailed'), metric)} |"
             )
-        out.append("")
+        out += [f"**Table {number}: {title}**", *table_block(rows, compact=True)]
     if not grasps:
         out.append("_Table IV: no grasp results in this store._")
-        return "\n".join(out)
+        return styled(out)
     out += [
         "**Table IV: grasps**, planned on the completion, executed on the truth: joint and pose "
         "errors (mean), share lifted; paper: joint ° / pose mm",
-        "",
-        "| method | joint ° | pose mm | lift | paper |",
-        "|---|---:|---:|:---:|---:|",
     ]
+    rows = ["| method | joint ° | pose mm | lift | paper |", "|---|---:|---:|---:|---:|"]
     for s in VIEW_SETS:
-        rows = []
+        set_rows = []
         for m in GRASP_TABLE_METHODS:
             c = grasps.get(s, {}).get(m)
             if not c:
                 continue
             joint, pose = paper_grasp("joint_error_deg", s, m), paper_grasp("pose_error_mm", s, m)
             paper = "–" if math.isnan(joint) else f"{fmt(joint, 1)} / {fmt(pose, 0)}"
-            rows.append(
+            set_rows.append(
                 f"| {SHORT[m]} | {fmt(c['joint_error_deg'], 1)} | {fmt(c['pose_error_mm'], 1)} | "
                 f"{fmt_share(c['lift_success'], 0)} | {paper} |"
             )
-        if rows:
-            out += [f"| _{SET_TITLES[s]}_ | | | | |", *rows]
-    return "\n".join(out)
+        if set_rows:
+            rows += [f"| _{SHORT_SET[s]}_ | | | | |", *set_rows]
+    out += table_block(rows, compact=True)
+    return styled(out)

@@ -19,8 +19,9 @@ from ...evaluation.summaries import CompletionResult, GraspSummary, ObjectSummar
 from ..audience import Audience
 from ..gui import set_value
 from ..jobs import send_download
+from ..sources import markdown_text, one_line
 from .controls import DatasetControls, build_controls
-from .drawing import DatasetScene, DisplayMeshes, best_grasp_hands
+from .drawing import DatasetScene, DisplayMeshes, best_grasp_hands, hand_extents, place_hands
 from .exports import export_bytes
 from .layout import DATASET_FOV, ViewLayout, layout_view
 from .summary import (
@@ -85,6 +86,7 @@ class DatasetTab:
         build: SampleBuild | None = None,
     ) -> None:
         self.audience = audience
+        self.pipeline_tab = pipeline_tab
         self.hooks = hooks
         self.build = build
         self.store: ResultsStore | None = None
@@ -100,7 +102,7 @@ class DatasetTab:
         self.meshes = DisplayMeshes()
         self.c: DatasetControls = build_controls(audience.gui, tab, pipeline_tab)
         self.bars = BarsWorker(self._show_bars, self._closed)
-        self.c.wire(audience.gui, self)
+        self.c.wire(audience.gui, self, hooks.notify)
         self.c.progress.visible = self.building
         self._open(results)
         # Started once the store is open (a bad --results folder raises above and leaves no thread).
@@ -140,19 +142,19 @@ class DatasetTab:
                 self.hooks.notify(client, "No results store", "Open one with --results DIR.", "yellow")
                 return False
             views = self.store.views(name)
-            if not views:
-                self.hooks.notify(client, "No results", f"{name} has no view with results.", "yellow")
-                return False
-            info = next((v for v in views if v.view == view), None) if view is not None else views[0]
+            info = next((v for v in views if v.view == view), None) if view is not None else next(iter(views), None)
             if info is None:
-                self.hooks.notify(client, "No such view", f"{name} has no results for view {view}.", "yellow")
+                what = f"{name} has no view with results." if not views else f"{name} has no results for view {view}."
+                self.hooks.notify(client, "No results" if not views else "No such view", what, "yellow")
+                self._sync_selectors()  # the dropdowns show what is on screen, not the refused choice
                 return False
             try:
                 self._show(info, client)
             except Exception as e:  # a missing or broken mesh file: say so, keep the app alive
-                log.warning("showing %s view %d failed: %s", name, info.view, e, exc_info=True)
+                log.warning("showing %s view %d failed: %s", one_line(name), info.view, one_line(str(e)), exc_info=True)
                 self.last_error = f"{name} view {info.view}: {e}"
                 self.hooks.notify(client, "Cannot show the view", self.last_error, "red")
+                self._sync_selectors()
                 return False
             self._sync_selectors()
             return True
@@ -201,7 +203,12 @@ class DatasetTab:
             self.c.set_shown(False)
 
     def open_in_pipeline(self, client: viser.ClientHandle | None = None) -> bool:
-        """Send the shown view's capture (its saved partial points) to the Pipeline tab."""
+        """Send the shown view's capture (its saved partial points) to the Pipeline tab, and bring
+        that tab to the front once the capture is loaded.
+
+        The dataset stays on screen while the capture loads (loading it leaves the dataset, as any
+        new scene does): the pipeline's scene is never drawn under the Dataset tab, and a capture
+        that cannot be loaded leaves the view where it was."""
         with self._lock:
             if self.shown is None:
                 self.hooks.notify(client, "No view", "Choose a view first.", "yellow")
@@ -213,13 +220,14 @@ class DatasetTab:
             except Exception as e:
                 self.hooks.notify(client, "Cannot open the view", f"{info.object} view {info.view}: {e}", "red")
                 return False
-            self.leave(client)
         ok = self.hooks.open_capture(capture, client)
         if ok:
+            self.leave(client)  # done by loading the scene already; nothing when so
+            self.audience.show_tab(self.pipeline_tab, client)
             self.hooks.notify(
                 client,
                 "Opened in the Pipeline tab",
-                f"{info.object} view {info.view}: switch to the Pipeline tab and click the segment to complete it.",
+                f"{info.object} view {info.view}: click the segment to complete it.",
                 "green",
             )
         return ok
@@ -246,7 +254,9 @@ class DatasetTab:
         c = self.c
         send_download(
             client,
-            lambda: self.export_bytes(what, c.export_kind.value, c.export_format.value, c.export_frame.value),
+            lambda: self.export_bytes(
+                what, c.choice(c.export_kind), c.choice(c.export_format), c.choice(c.export_frame)
+            ),
             self.hooks.notify,
             (ValueError, OSError),
         )
@@ -320,7 +330,7 @@ class DatasetTab:
         self.last_error = message
         if not self._closed.is_set():
             self.c.progress.visible = False
-            self.c.status.content = f"**Building the sample store failed:** {message}"
+            self.c.status.content = f"**Building the sample store failed:** {markdown_text(message)}"
 
     def _show_bars(self, png: bytes | None, method: Method, metric: Metric) -> None:
         self.c.show_bars(self.audience.gui, png, bars_caption(method, metric))
@@ -363,15 +373,17 @@ class DatasetTab:
         if "truth" not in items:
             raise ValueError("the view has no ground-truth mesh file")
         kinds = tuple(k for k in KINDS if k in items or k in by_method)
+        column_hands = best_grasp_hands(store, info, grasps, kinds) if self.c.show_grasps.value else []
         layout = layout_view(
             store.T_cam_obj(name, info.view),
             items["truth"][0],
             {k: v[0] for k, v in items.items()},
             kinds,
             self.scene.aspect(client),
+            extras_cam=hand_extents(column_hands),
         )
         labels = {k: column_label(k, len(items[k][0]) if k in items else 0, by_method.get(k), grasps) for k in kinds}
-        hands = best_grasp_hands(store, info, grasps, layout) if self.c.show_grasps.value else []
+        hands = place_hands(column_hands, layout)
         self._activate(None)  # the root first: the view is drawn under it
         self.scene.draw(layout, kinds, items, labels, hands)
         self.shown = ShownView(o, info, completions, grasps, layout)

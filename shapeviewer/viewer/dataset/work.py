@@ -19,7 +19,7 @@ from ...evaluation.methods import Method
 from ...evaluation.records import Metric
 from ...evaluation.sample_store import build_sample_store
 from ...evaluation.summaries import ObjectSummary
-from .summary import bars_png, worst_first
+from .summary import bars_png, path_markdown, styled, worst_first
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +102,6 @@ def poll_thread(refresh: Callable[[], None], closed: threading.Event) -> threadi
 
 
 # Raised in the sample build's progress callback when the viewer stops.
-_Stopped = Cancelled
 
 
 class SampleBuild:
@@ -143,11 +142,11 @@ class SampleBuild:
 
         def progress(done: int, total: int, what: str) -> None:
             if self._stopped.is_set():
-                raise _Stopped
+                raise Cancelled
             if what == "done":
                 return
             self._step = f"step {done + 1} of {total}: {what}"
-            text = f"_Building the sample results store ({self._step})..._  \n`{root}`"
+            text = styled([f"_Building the sample results store ({self._step})..._  \n" + path_markdown(str(root))])
             for tab in self.tabs():
                 tab.build_progress(100.0 * done / max(total, 1), text)
                 if done:
@@ -159,7 +158,7 @@ class SampleBuild:
             self._add_note(client)
         try:
             build_sample_store(root, weights=weights, progress=progress, completer=completer)
-        except _Stopped:
+        except Cancelled:
             return
         except Exception as e:  # keep the viewer alive; say why in the tabs
             log.exception("building the sample store failed")

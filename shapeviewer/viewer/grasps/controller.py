@@ -14,21 +14,22 @@ import numpy as np
 import trimesh
 import viser
 
+from ...errors import Cancelled
 from ...grasp.execute import ExecutionResult, execute_grasps
 from ...grasp.hands import HAND_NAMES
-from ...grasp.pick import PickCancelled, rank_grasps
+from ...grasp.pick import rank_grasps
 from ...grasp.plan import plan
 from ...grasp.robust import ROBUST_QUANTILE, WIDEN_BELOW, Robustness
 from ...grasp.serialize import grasps_to_json, scene_zip
 from ...runtime.processes import ProcessPool
 from ..audience import Audience
-from ..gui import set_value
+from ..gui import plural, set_value
 from ..jobs import Notify, send_download
 from ..state import MESH_KINDS, LoadedScene
-from .controls import DEFAULT_GRASPS, MAX_GRASPS, NO_GRASP, build_grasp_panel
+from .controls import DEFAULT_GRASPS, NO_GRASP, build_grasp_panel
 from .drawing import GraspDrawing
-from .state import GraspJob, GraspJobError, SegmentGrasps, ground_truth
-from .summary import execution_summary, grasp_options, info_markdown
+from .state import MAX_GRASPS, GraspJob, GraspJobError, SegmentGrasps, ground_truth, narrowest_width
+from .summary import execution_summary, grasp_options, info_markdown, plan_advice, stage_times
 from .work import GraspJobs
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,7 @@ class GraspHost:
         samples: segment id -> the meshes of its completion's sample completions (world frame,
             metres; the samples are made when missing), None when the segment has no completion.
         show_layer: ``(layer key, visible)``: tick or untick a layer's checkbox.
+        layer_shown: layer key -> whether its checkbox is ticked.
         set_status: show a line in the panel's status.
         notify: ``(client, title, body, color=None, auto_close=8.0)``; red ones are errors.
     """
@@ -58,6 +60,7 @@ class GraspHost:
     make_mesh: Callable[[str, int, viser.ClientHandle | None], trimesh.Trimesh | None]
     samples: Callable[[int], list[trimesh.Trimesh] | None]
     show_layer: Callable[[str, bool], None]
+    layer_shown: Callable[[str], bool]
     set_status: Callable[[str], None]
     notify: Notify
 
@@ -89,6 +92,9 @@ class GraspController:
         self.selected: int | None = None  # index of the selected grasp in that segment's list
         self._state = threading.RLock()  # guards sets/current/selected
         self._options: dict[str, int] = {}  # grasp dropdown entry -> index
+        # Layers that executing a grasp on the ground truth switched off, ticked again once the user
+        # moves on (restore_layers).
+        self._hidden_layers: list[str] = []
         self.widen_below = WIDEN_BELOW
         self._wire()
 
@@ -156,7 +162,7 @@ class GraspController:
             return None
         truth = ground_truth(scene.capture, scene.segments[segment_id])  # first: a real capture never has any
         if isinstance(truth, str):
-            self.host.notify(client, "No ground truth", truth, "red")
+            self.host.notify(client, "No ground truth", truth, "blue")  # information: nothing failed
             return None
         s = self.sets.get(segment_id)
         if s is None or not s.grasps:
@@ -228,7 +234,7 @@ class GraspController:
         mesh_world.apply_transform(scene.T_world_cam)
         # A synthetic scene stands on the table z = 0; a real one when segmentation found the plane.
         table = bool(scene.capture.objects) or scene.segmentation.plane_cam is not None
-        self.host.set_status(f"_Planning {n_grasps} {hand} grasps on segment {segment_id}..._")
+        self.host.set_status(f"_Planning {plural(n_grasps, hand + ' grasp')} on segment {segment_id}..._")
         t0 = time.perf_counter()
         result = self.jobs.compute(
             job, plan, mesh_world, hand=hand, n_grasps=n_grasps, seed=seed, table=table, budget_seconds=budget_seconds
@@ -238,6 +244,8 @@ class GraspController:
             self.host.notify(client, "Planning cancelled", f"Segment {segment_id}: no grasps kept.", "yellow")
             return None
         s = SegmentGrasps(segment_id, hand, method, mesh_world, table, seed, result.grasps, result.stats)
+        s.seconds["plan"] = seconds
+        s.width = narrowest_width(mesh_world)
         with self._state:
             if self.host.scene() is not scene:  # a new scene was loaded meanwhile
                 self.host.notify(client, "Grasps dropped", "The scene changed while planning.", "yellow")
@@ -246,24 +254,29 @@ class GraspController:
             self.current, self.selected = segment_id, (0 if s.grasps else None)
             self.drawing.draw_segment(s)
             self._refresh_panel()
+        self.restore_layers()  # a new plan: what an execution hid comes back
         self.host.show_layer("grasps", True)  # the user asked to see them
         n_fc = sum(g.force_closure for g in s.grasps)
         n_up = sum(g.lifted for g in s.grasps)
+        advice = plan_advice(s)
         if s.grasps:
             self.host.notify(
                 client,
                 "Grasps ready",
-                f"Segment {segment_id}: {len(s.grasps)} {hand} grasps "
-                f"({n_fc} force closure, {n_up} lift the mesh in simulation) on the {method} mesh in {seconds:.1f} s.",
-                "green",
+                f"Segment {segment_id}: {plural(len(s.grasps), hand + ' grasp')} "
+                f"({n_fc} force closure, {n_up} lift the mesh in simulation) on the {method} mesh; "
+                f"{stage_times(s.seconds)}." + ("" if advice is None else f" {advice}"),
+                "green" if advice is None else "yellow",
+                auto_close=8.0 if advice is None else 20.0,
             )
         else:
             self.host.notify(
                 client,
                 "No grasp found",
                 f"Segment {segment_id}: no {hand} grasp touches the {method} "
-                "mesh with every finger. Try the other hand or another mesh.",
+                "mesh with every finger. " + (advice or "Try the other hand or another mesh."),
                 "yellow",
+                auto_close=20.0,
             )
         return s
 
@@ -279,7 +292,7 @@ class GraspController:
     ) -> list[ExecutionResult]:
         name, truth_world = truth
         sid = s.segment_id
-        self.host.set_status(f"_Executing {len(picked)} grasp(s) of segment {sid} on {name}..._")
+        self.host.set_status(f"_Executing {plural(len(picked), 'grasp')} of segment {sid} on {name}..._")
         results = self.jobs.compute(
             job, execute_grasps, [s.grasps[i] for i in picked], truth_world, table=s.table, lift=lift
         )
@@ -292,11 +305,15 @@ class GraspController:
             self.drawing.draw_executions(s, picked)
             self._restyle()
             self._show_info()
-        # The opaque completion and its input voxels would hide the (translucent) true object.
+        # The opaque completion and its input voxels would hide the (translucent) true object; they
+        # come back once the user moves on (restore_layers).
         for layer in (f"{s.method}_mesh", "cnn_input"):
-            self.host.show_layer(layer, False)
+            if self.host.layer_shown(layer):
+                self.host.show_layer(layer, False)
+                if layer not in self._hidden_layers:
+                    self._hidden_layers.append(layer)
         cancelled = " (cancelled before every lift test)" if job.cancel_event.is_set() else ""
-        self.host.notify(client, "Executed" + cancelled, execution_summary(sid, name, results), "green")
+        self.host.notify(client, "Executed" + cancelled, execution_summary(sid, name, s.hand, results), "green")
         return results
 
     def _rank_job(
@@ -314,7 +331,8 @@ class GraspController:
             raise GraspJobError(f"Segment {sid} has no completion to sample: complete it, then rank again.")
         first = len(s.grasps) if s.wider_from is None else s.wider_from
         self.host.set_status(
-            f"_Re-closing {first} grasps on {len(samples)} sample completions, then lifting the best..._"
+            f"_Re-closing {plural(first, 'grasp')} on {plural(len(samples), 'sample completion')}, "
+            "then lifting the best..._"
         )
 
         def envelope() -> trimesh.Trimesh:
@@ -322,7 +340,7 @@ class GraspController:
             self.host.set_status(
                 f"_No grasp lifted {self.widen_below:.0%} of its sample tests: "
                 + (
-                    f"planning {first} more on the grasp envelope of segment {sid}..._"
+                    f"planning {plural(first, 'more grasp')} on the grasp envelope of segment {sid}..._"
                     if s.wider_from is None
                     else f"re-closing the grasps of the grasp envelope of segment {sid} on the sample completions..._"
                 )
@@ -348,7 +366,7 @@ class GraspController:
                 progress=self.jobs.progress,
                 cancel=job.cancel_event.is_set,
             )
-        except PickCancelled:
+        except Cancelled:
             self.host.notify(client, "Ranking cancelled", f"Segment {sid}: the grasps keep their order.", "yellow")
             return None
         if pick.wider_error is not None:
@@ -371,27 +389,36 @@ class GraspController:
                 s.wider_from = first if more else None
                 self.drawing.draw_segment(s)
             s.robustness = scores
+            # The planning figure stays; ranking (and the wider search, when it ran) get their own.
+            s.seconds = {"plan": s.seconds.get("plan", 0.0), "rank": pick.seconds["rank"]}
+            if pick.wider_from is not None or pick.wider_error is not None:  # the wider search ran
+                s.seconds["wider"] = pick.seconds["wider"]
             self.current, self.selected = sid, order[0]  # the user asked for the most robust one
             self._refresh_panel()
         best = scores[order[0]]
+        advice = plan_advice(s)
         self.host.notify(
             client,
             "Ranked by robustness",
             f"Segment {sid}: grasp #{order[0] + 1} is the most robust"
             + (" (planned on the grasp envelope)" if order[0] >= first else "")
-            + f"; it holds on {round(best.fraction * len(samples))} of {len(samples)} sample completions"
+            + f"; it holds on {round(best.fraction * len(samples))} of "
+            + plural(len(samples), "sample completion")
             + (
                 "."
                 if best.lifted is None
-                else f"; it lifted them in {round(best.lifted * best.lift_tests)} of {best.lift_tests} tests."
+                else f"; it lifted them in {round(best.lifted * best.lift_tests)} of {plural(best.lift_tests, 'test')}."
             )
             + (
                 f" No grasp of the {s.method} mesh lifted {self.widen_below:.0%} of its tests, so "
-                f"{len(more)} more were planned on the grasp envelope (#{first + 1}-#{first + len(more)})."
+                f"{plural(len(more), 'more grasp was', 'more grasps were')} planned on the grasp envelope "
+                f"(#{first + 1}-#{first + len(more)})."
                 if more
                 else ""
-            ),
-            "green",
+            )
+            + f" {stage_times(s.seconds)}."
+            + ("" if advice is None else f" {advice}"),
+            "green" if advice is None else "yellow",
         )
         return scores
 
@@ -411,6 +438,14 @@ class GraspController:
             s = self._listed()
             self.selected = None if s is None or index is None else int(np.clip(index, 0, len(s.grasps) - 1))
             self._refresh_panel()
+
+    def restore_layers(self) -> None:
+        """Tick again the layers that executing a grasp on the ground truth switched off (the
+        completion's mesh, its CNN input): the user has moved on (a new completion, another
+        segment chosen, a new plan or a new scene)."""
+        hidden, self._hidden_layers = self._hidden_layers, []
+        for layer in hidden:
+            self.host.show_layer(layer, True)
 
     def follow_segment(self, segment_id: int | None) -> None:
         """The app selected ``segment_id``: list its grasps, when it has some."""
@@ -434,7 +469,7 @@ class GraspController:
             "seed": s.seed,
             "table": s.table,
             "T_world_cam": np.asarray(scene.T_world_cam).tolist(),
-            "planning_seconds": s.stats.seconds.get("total"),
+            "planning_seconds": s.seconds.get("plan"),
             "ground_truth": s.truth_name,
             # The quantile each grasp's robustness.epsilon_low is of its epsilons over the samples.
             "robust_quantile": None if s.robustness is None else ROBUST_QUANTILE,
@@ -459,6 +494,7 @@ class GraspController:
             self.drawing.clear()
             self.sets, self.current, self.selected = {}, None, None
             self._refresh_panel()
+        self.restore_layers()
 
     def info_markdown(self) -> str:
         """The Grasps folder's text: the listed segment's plan, the selected grasp, its execution."""

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import viser
 
 from ...grasp.hands import HAND_NAMES
+from ..gui import ProgressBar
 from ..state import MESH_KINDS
-
-if TYPE_CHECKING:
-    from viser._gui_handles import GuiProgressBarHandle  # what add_progress_bar returns; viser does not export it
+from .state import MAX_GRASPS
 
 NO_GRASP = "(none)"
 DEFAULT_GRASPS = 20  # the paper plans 20 grasps per object
-MAX_GRASPS = 50
 # The download buttons: format (see GraspController.export) -> label, icon, hint.
 EXPORTS = {
     "json": (
@@ -39,7 +36,7 @@ class GraspPanel:
     method: viser.GuiDropdownHandle
     count: viser.GuiNumberHandle
     plan: viser.GuiButtonHandle
-    progress: GuiProgressBarHandle
+    progress: ProgressBar
     cancel: viser.GuiButtonHandle
     rank: viser.GuiButtonHandle  # enabled while the listed segment has grasps and no job runs
     grasp: viser.GuiDropdownHandle

@@ -22,6 +22,7 @@ from ...perception.capture import Capture, SceneObject
 from ...perception.segment import Segment
 
 MIN_GROUND_TRUTH_SHARE = 0.5  # a segment is an object when at least this share of its labelled points are
+MAX_GRASPS = 50  # the most grasps one plan keeps (the Grasps folder's count)
 
 
 @dataclass(eq=False)
@@ -45,6 +46,12 @@ class SegmentGrasps:
         wider_from: the index from which ``grasps`` come from the ranking's wider search, planned
             on the grasp envelope because no grasp of ``method`` held up on the samples
             (:func:`~shapeviewer.grasp.robust.is_weak`); None when it did not run.
+        seconds: wall-clock seconds of each stage the grasps went through, as the user waited for
+            it: ``"plan"`` (planning), then, once ranked by robustness, ``"rank"`` (scoring them on
+            the samples) and ``"wider"`` (the wider search, when it ran), as in
+            :attr:`~shapeviewer.grasp.pick.Pick.seconds`. The notices and the panel show these.
+        width: the narrowest extent of ``mesh_world`` (metres, the smallest edge of its oriented
+            bounding box), to compare with a parallel gripper's opening; None when unknown.
     """
 
     segment_id: int
@@ -60,10 +67,19 @@ class SegmentGrasps:
     truth_world: trimesh.Trimesh | None = None
     robustness: list[Robustness] | None = None
     wider_from: int | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    width: float | None = None
 
     def __post_init__(self) -> None:
         if not self.executions:
             self.executions = [None] * len(self.grasps)
+
+
+def narrowest_width(mesh: trimesh.Trimesh) -> float:
+    """The smallest edge (metres) of ``mesh``'s oriented bounding box: about how wide a hand must
+    open to close around the object the narrow way."""
+    _, extents = trimesh.bounds.oriented_bounds(mesh)
+    return float(np.min(extents))
 
 
 @dataclass(eq=False)

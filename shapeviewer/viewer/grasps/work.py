@@ -15,9 +15,10 @@ from typing import Any, TypeVar
 import numpy as np
 import viser
 
+from ...errors import Cancelled
 from ...grasp.pick import Runner
 from ...grasp.search import ProgressFn
-from ...runtime.processes import JobCancelled, ProcessPool
+from ...runtime.processes import ProcessPool
 from ..gui import set_value
 from ..jobs import READY, Notify
 from .controls import GraspPanel
@@ -77,7 +78,7 @@ class GraspJobs:
         def run() -> None:
             try:
                 job.result = work(job)
-            except JobCancelled:  # Cancel (or a closed tab) stopped it: no news
+            except Cancelled:  # Cancel (or a closed tab) stopped it: no news
                 job.error = "cancelled"
             except GraspJobError as e:
                 job.error = str(e)
