@@ -37,6 +37,8 @@ import trimesh
 
 from ..fileio import atomic_write, cache_dir
 from . import urdf_objects
+from .kinds import _YCB_BY_SHORT, YCB_KIND, kind_from_name
+from .solidify import make_solid, process_mesh
 
 log = logging.getLogger(__name__)
 
@@ -222,57 +224,6 @@ def _portable(path: Path | str) -> str:
         if path.is_relative_to(root):
             return str(path.relative_to(root))
     return str(path)
-
-
-def union_parts(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
-    """Boolean union of closed parts with manifold3d (overlapping convex pieces -> one solid)."""
-    import manifold3d as mf
-
-    solids = []
-    for p in parts:
-        m = mf.Manifold(
-            mf.Mesh(vert_properties=np.asarray(p.vertices, np.float32), tri_verts=np.asarray(p.faces, np.uint32))
-        )
-        if m.status() == mf.Error.NoError and not m.is_empty():
-            solids.append(m)
-    if not solids:
-        raise ValueError("no part is a closed manifold")
-    out = mf.Manifold.batch_boolean(solids, mf.OpType.Add).to_mesh()
-    return trimesh.Trimesh(np.asarray(out.vert_properties)[:, :3], np.asarray(out.tri_verts), process=True)
-
-
-def process_mesh(path: Path, scale: tuple) -> trimesh.Trimesh:
-    """Load a mesh file and make it a watertight solid in metres, or raise ValueError saying why."""
-    mesh = trimesh.load(path, force="mesh", process=True)
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError("no triangles")
-    return make_solid(mesh, scale)
-
-
-def make_solid(mesh: trimesh.Trimesh, scale: tuple = (1.0, 1.0, 1.0)) -> trimesh.Trimesh:
-    """``mesh`` scaled per axis by ``scale`` and repaired into one watertight solid of positive volume
-    (duplicate vertices merged, stray slivers dropped, closed parts united), or ValueError saying why."""
-    if len(mesh.faces) == 0:
-        raise ValueError("no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise ValueError("non-finite vertices")
-    mesh = trimesh.Trimesh(mesh.vertices * np.asarray(scale, dtype=np.float64), mesh.faces, process=True)
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    # Stray slivers (YCB scans) and loose pieces: keep real bodies only.
-    parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) > 10] or [mesh]
-    if len(parts) == 1 and parts[0].is_watertight:
-        solid = parts[0]
-    else:
-        solid = union_parts(parts) if all(p.is_watertight for p in parts) else parts[0]
-        if len(parts) > 1 and not solid.is_watertight:
-            raise ValueError("parts are not closed")
-    if not solid.is_watertight:
-        raise ValueError("not watertight")
-    if solid.volume < 0:
-        solid.invert()
-    if solid.volume <= 0:
-        raise ValueError("zero volume")
-    return solid
 
 
 def _build(source: str, path: Path | str, scale: tuple) -> trimesh.Trimesh:
@@ -604,89 +555,6 @@ def entry(name: str) -> ObjectEntry:
 
 # ----------------------------------------------------------------------------------------------
 # Shape kinds (a coarse family per object, for per-kind reports)
-
-_YCB_KINDS = {
-    "can": "002_master_chef_can 005_tomato_soup_can 007_tuna_fish_can 010_potted_meat_can",
-    "box": "003_cracker_box 004_sugar_box 008_pudding_box 009_gelatin_box 026_sponge 036_wood_block 061_foam_brick "
-    "062_dice 070-a_colored_wood_blocks 070-b_colored_wood_blocks 071_nine_hole_peg_test 077_rubiks_cube",
-    "bottle": "006_mustard_bottle 021_bleach_cleanser",
-    "spray_bottle": "022_windex_bottle",
-    "banana": "011_banana",
-    "fruit": "012_strawberry 013_apple 014_lemon 015_peach 016_pear 017_orange 018_plum",
-    "pitcher": "019_pitcher_base",
-    "bowl": "024_bowl",
-    "mug": "025_mug",
-    "plate": "029_plate",
-    "cup": "065-a_cups 065-b_cups 065-c_cups 065-d_cups 065-e_cups 065-f_cups 065-g_cups 065-h_cups "
-    "065-i_cups 065-j_cups",
-    "drill": "035_power_drill",
-    "tool": "030_fork 031_spoon 032_knife 033_spatula 037_scissors 040_large_marker 042_adjustable_wrench "
-    "043_phillips_screwdriver 044_flat_screwdriver 048_hammer 050_medium_clamp 051_large_clamp "
-    "052_extra_large_clamp",
-    "ball": "053_mini_soccer_ball 054_softball 055_baseball 056_tennis_ball 057_racquetball 058_golf_ball "
-    "063-a_marbles 063-b_marbles",
-    "other": "028_skillet_lid 038_padlock 059_chain 072-a_toy_airplane 072-b_toy_airplane 072-c_toy_airplane "
-    "072-d_toy_airplane 072-e_toy_airplane 073-a_lego_duplo 073-b_lego_duplo 073-c_lego_duplo "
-    "073-d_lego_duplo 073-e_lego_duplo 073-f_lego_duplo 073-g_lego_duplo",
-}
-YCB_KIND = {obj: kind for kind, names in _YCB_KINDS.items() for obj in names.split()}
-# YCB objects by their name without the number (``mustard_bottle`` -> ``006_mustard_bottle``): object
-# sets that hold YCB meshes name them so.
-_YCB_BY_SHORT = {obj.split("_", 1)[1]: obj for obj in YCB_KIND}
-
-# Kinds an object's name tells (objects of URDF folders), in the vocabulary of household.KINDS: a word
-# of the name that names a container or a tool. First match wins, in this order.
-_KIND_WORDS = (
-    ("spray_bottle", "spray"),
-    ("mug", "mug mugs"),
-    ("cup", "cup cups glass tumbler"),
-    ("bowl", "bowl bowls"),
-    ("plate", "plate plates dish saucer"),
-    ("pitcher", "pitcher jug"),
-    ("jar", "jar jars"),
-    ("bottle", "bottle bottles flask shampoo cleanser detergent wash gel"),
-    ("can", "can cans tin cylinder"),
-    ("box", "box boxes carton cube tetra"),
-    ("drill", "drill"),
-    ("tool", "hammer screwdriver wrench pliers scissors clamp spatula knife fork spoon ladle marker"),
-    ("ball", "ball"),
-)
-KIND_WORD = {w: kind for kind, words in _KIND_WORDS for w in words.split()}
-# Whole names of produce: only a name made of these words is the kind (``nutrigrain_apple_cinnamon`` is
-# a box of bars, not a fruit).
-_PRODUCE_WORDS = {
-    "banana": "banana bananas",
-    "fruit": "apple lemon lime orange peach pear plum strawberry avocado starfruit pumpkin bell pepper "
-    "red green yellow",
-}
-PRODUCE_WORD = {w: kind for kind, words in _PRODUCE_WORDS.items() for w in words.split()}
-# Phrases whose words would say another kind (a watering can is not a can).
-_NOT_A_KIND = (("watering", "can"), ("toilet", "paper"), ("light", "bulb"))
-# Words that name a version of a model, not the object (``Shampoo_800_tex``, ``bowl_poisson_005``).
-_NAME_NOISE = {"poisson", "tex", "new", "small", "large", "big"}
-
-
-def name_words(name: str) -> list[str]:
-    """The lower-case words of an object's file name: split at ``_``, ``-``, spaces and camel case,
-    without numbers, single letters and version words (``RedCup_800_tex`` -> ``[red, cup]``)."""
-    words = re.findall(r"[A-Z]?[a-z]+|[A-Z]+(?![a-z])|\d+", name)
-    return [w.lower() for w in words if len(w) > 1 and not w.isdigit() and w.lower() not in _NAME_NOISE]
-
-
-def kind_from_name(name: str) -> str:
-    """The shape kind an object's file name tells (``tomato_soup_can`` -> ``can``, ``RedCup_800_tex``
-    -> ``cup``, ``banana_poisson_001`` -> ``banana``, ``apple`` -> ``fruit``), else ``other``."""
-    words = name_words(name)
-    pairs = set(zip(words, words[1:]))
-    if any(p in pairs for p in _NOT_A_KIND):
-        return "other"
-    for w in words:
-        if w in KIND_WORD:
-            return KIND_WORD[w]
-    kinds = {PRODUCE_WORD.get(w) for w in words}
-    if len(kinds) == 1 and None not in kinds:
-        return str(kinds.pop())
-    return "other"
 
 
 def shape_kind(name: str) -> str:

@@ -18,6 +18,7 @@ import trimesh
 
 from shapeviewer.cli.commands import main
 from shapeviewer.sim import catalogue, urdf_objects
+from shapeviewer.sim import kinds as kind_names
 from shapeviewer.training.generate import GenerationConfig, generate
 
 URDF = """<?xml version="1.0"?>
@@ -111,7 +112,7 @@ def test_the_split_holds_out_about_fifteen_percent_and_one_object_has_one_split(
 def test_kinds_are_told_by_the_objects_names(clutter_catalogue):
     entries, _ = clutter_catalogue
     kinds = Counter(catalogue.shape_kind(e.name) for e in entries)
-    assert set(kinds) <= set(catalogue.YCB_KIND.values()) | set(catalogue.KIND_WORD.values()) | {"fruit", "banana"}
+    assert set(kinds) <= set(catalogue.YCB_KIND.values()) | set(kind_names.KIND_WORD.values()) | {"fruit", "banana"}
     assert sum(n for k, n in kinds.items() if k != "other") >= 0.25 * len(entries)
     print(dict(kinds.most_common()))
 
