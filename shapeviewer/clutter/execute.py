@@ -26,6 +26,7 @@ import numpy as np
 
 from ..geometry import pose_to_pq
 from ..grasp.hands import HandBody, load_hand, palm_pose, set_joints
+from ..grasp.lift import hold_base
 from ..runtime.bullet import pybullet as p
 from .scene import MAX_OPENING, TIME_STEP, ClutterWorld
 
@@ -114,19 +115,7 @@ class _Hand:
             )
         pos, quat = pose_to_pq(T_world_palm)  # the palm frame is the base's inertial frame
         self.orientation = quat
-        self.cid = p.createConstraint(
-            self.hb.body,
-            -1,
-            -1,
-            -1,
-            p.JOINT_FIXED,
-            [0, 0, 0],
-            [0, 0, 0],
-            pos,
-            childFrameOrientation=quat,
-            physicsClientId=c,
-        )
-        p.changeConstraint(self.cid, pos, quat, maxForce=HOLD_FORCE, physicsClientId=c)
+        self.cid = hold_base(c, self.hb.body, pos, quat, HOLD_FORCE)
         gear = p.createConstraint(
             self.hb.body,
             self.fingers[0],

@@ -305,6 +305,28 @@ def complete(
         EmptyCompletionError: the network completed nothing.
         ValueError: an unknown ``mode`` or a malformed ``support_plane``.
     """
+    return complete_with_samples(
+        points_cam,
+        support_plane=support_plane,
+        mode=mode,
+        completer=completer,
+        revolve_answers=revolve_answers,
+        fit_boxes=fit_boxes,
+    )[1]
+
+
+def complete_with_samples(
+    points_cam: np.ndarray,
+    *,
+    support_plane: np.ndarray | None = None,
+    mode: Literal["fast", "detailed"] = "detailed",
+    completer: Completer | None = None,
+    revolve_answers: bool = False,
+    fit_boxes: bool = True,
+) -> tuple[Completion, trimesh.Trimesh]:
+    """What :func:`complete` computes, with the :class:`Completion` it meshed (its CNN grids, frame
+    and 8 sample completions) beside the mesh: for callers that need the samples too (the pick,
+    :func:`~shapeviewer.grasp.pick.robust_grasps`). Arguments, frames and errors as :func:`complete`."""
     if mode not in ("fast", "detailed"):
         raise ValueError(f"mode must be 'fast' or 'detailed', got {mode!r}")
     from ..perception.segment import isolate
@@ -317,9 +339,7 @@ def complete(
     c = complete_points(
         [pts], completer, support_plane=support_plane, revolve_answers=revolve_answers, fit_boxes=fit_boxes
     )[0]
-    if mode == "fast":
-        return c.require_fast_mesh()
-    return completion_detailed_mesh(c, pts)
+    return c, (c.require_fast_mesh() if mode == "fast" else completion_detailed_mesh(c, pts))
 
 
 @lru_cache(maxsize=1)

@@ -43,6 +43,26 @@ SUCCESS_FRACTION = 0.5  # the object must rise at least this share of the lift
 SOFT_CONTACT_SPIN = 0.002
 
 
+def hold_base(client: int, body: int, position, orientation, max_force: float) -> int:
+    """The arm of a free-floating hand: a fixed constraint from the world to ``body``'s base (its
+    inertial frame) at ``position`` (m, world) and ``orientation`` (quaternion xyzw), pulling with at
+    most ``max_force`` (N). Move the hand with ``p.changeConstraint`` on the returned id."""
+    cid = p.createConstraint(
+        body,
+        -1,
+        -1,
+        -1,
+        p.JOINT_FIXED,
+        [0, 0, 0],
+        [0, 0, 0],
+        position,
+        childFrameOrientation=orientation,
+        physicsClientId=client,
+    )
+    p.changeConstraint(cid, position, orientation, maxForce=max_force, physicsClientId=client)
+    return cid
+
+
 def lift_test(
     state: HandState,
     true_mesh_world: trimesh.Trimesh,
@@ -80,19 +100,7 @@ def lift_test(
 
         # The arm: a fixed constraint from the world to the palm's inertial frame, moved by its pivot.
         start_pos, orn = p.getBasePositionAndOrientation(hb.body, physicsClientId=c)
-        cid = p.createConstraint(
-            hb.body,
-            -1,
-            -1,
-            -1,
-            p.JOINT_FIXED,
-            [0, 0, 0],
-            [0, 0, 0],
-            start_pos,
-            childFrameOrientation=orn,
-            physicsClientId=c,
-        )
-        p.changeConstraint(cid, start_pos, orn, maxForce=HOLD_FORCE, physicsClientId=c)
+        cid = hold_base(c, hb.body, start_pos, orn, HOLD_FORCE)
 
         # Fingers squeeze towards fully closed with their URDF efforts; preshape joints hold.
         fingers = hand.closing_joints

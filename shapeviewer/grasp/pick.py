@@ -348,17 +348,11 @@ def robust_grasps(
         Cancelled: ``cancel`` returned True.
         ValueError: an unknown ``hand`` or ``mode``, or a malformed ``support_plane``.
     """
-    from shapeviewer.completion.pipeline import (
-        MIN_SEGMENT_POINTS,
-        _shipped_completer,
-        check_segment,
-        complete_points,
-        completion_detailed_mesh,
-    )
+    from shapeviewer.completion.pipeline import complete_with_samples
     from shapeviewer.completion.voxel import unit_plane
     from shapeviewer.grasp.hands import HAND_NAMES
     from shapeviewer.grasp.robust import envelope_mesh, sample_meshes
-    from shapeviewer.perception.segment import isolate, table_frame
+    from shapeviewer.perception.segment import table_frame
 
     if hand not in HAND_NAMES:
         raise ValueError(f"unknown hand {hand!r}; choose one of {HAND_NAMES}")
@@ -366,14 +360,7 @@ def robust_grasps(
         raise ValueError(f"mode must be 'fast' or 'detailed', got {mode!r}")
     normal, d = unit_plane(support_plane)
     plane = np.append(normal, d)
-    completer = completer or _shipped_completer()
-    # As shapeviewer.complete cuts the points: what the app's segmentation would have kept.
-    pts = check_segment(points_cam)
-    kept = pts[isolate(pts, support_plane=plane)]
-    if len(kept) >= MIN_SEGMENT_POINTS:
-        pts = kept
-    (c,) = complete_points([pts], completer, support_plane=plane)
-    mesh_cam = c.require_fast_mesh() if mode == "fast" else completion_detailed_mesh(c, pts)
+    c, mesh_cam = complete_with_samples(points_cam, support_plane=plane, mode=mode, completer=completer)
     T_world_cam = table_frame(plane)
     mesh_world = mesh_cam.copy().apply_transform(T_world_cam)
     samples_world = sample_meshes(c.samples, c.frame, T_world_cam, level=c.mesh_level)
